@@ -1,0 +1,101 @@
+"""Forward kinematics in JAX, batched over frames.
+
+``R_world[j] = R_world[parent] @ R_local[j]`` and
+``p_world[j] = p_world[parent] + R_world[parent] @ t_local[j]``, where ``R_local`` is the product
+of the joint's rotation channels in listed order and ``t_local`` is the joint's position channels
+if it has them, else its OFFSET (see :mod:`bayesmotion.data.skeleton`).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .skeleton import Skeleton
+
+
+def axis_rotation(axis: str, angle: jax.Array) -> jax.Array:
+    """Rotation matrices about a coordinate axis. angle: (...,) radians -> (..., 3, 3)."""
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    o, z = jnp.ones_like(angle), jnp.zeros_like(angle)
+    rows = {
+        "X": ((o, z, z), (z, c, -s), (z, s, c)),
+        "Y": ((c, z, s), (z, o, z), (-s, z, c)),
+        "Z": ((c, -s, z), (s, c, z), (z, z, o)),
+    }[axis]
+    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def euler_to_matrix(angles_deg: jax.Array, order: str) -> jax.Array:
+    """Intrinsic Euler angles to matrices, ``R = R_order[0] @ R_order[1] @ ...``.
+
+    Args:
+        angles_deg: (..., len(order)) angles in degrees, in the listed order.
+        order: axes such as ``"ZYX"``.
+    Returns:
+        (..., 3, 3) rotation matrices.
+    """
+    rad = jnp.deg2rad(angles_deg)
+    R = jnp.broadcast_to(jnp.eye(3, dtype=rad.dtype), rad.shape[:-1] + (3, 3))
+    for k, axis in enumerate(order):
+        R = R @ axis_rotation(axis, rad[..., k])
+    return R
+
+
+def _fk(values: jax.Array, *, skeleton: Skeleton, with_end_sites: bool) -> jax.Array:
+    rot_idx, orders = skeleton.rotation_layout()
+    pos_idx = skeleton.position_layout()
+    offsets = jnp.asarray(skeleton.offsets, dtype=values.dtype)
+    lead = values.shape[:-1]
+    Rw, pw = [], []
+    for j, parent in enumerate(skeleton.parents):
+        n_rot = len(orders[j])
+        if n_rot:
+            R = euler_to_matrix(values[..., rot_idx[j, :n_rot]], orders[j])
+        else:
+            R = jnp.broadcast_to(jnp.eye(3, dtype=values.dtype), lead + (3, 3))
+        t = jnp.broadcast_to(offsets[j], lead + (3,))
+        for a in range(3):
+            if pos_idx[j, a] >= 0:
+                t = t.at[..., a].set(values[..., pos_idx[j, a]])
+        if parent < 0:
+            Rw.append(R)
+            pw.append(t)
+        else:
+            Rw.append(Rw[parent] @ R)
+            pw.append(pw[parent] + jnp.einsum("...ij,...j->...i", Rw[parent], t))
+    if with_end_sites:
+        for j, off in sorted(skeleton.end_sites.items()):
+            pw.append(pw[j] + jnp.einsum("...ij,j->...i", Rw[j], jnp.asarray(off, values.dtype)))
+    return jnp.stack(pw, axis=-2)
+
+
+@lru_cache(maxsize=64)
+def _jitted_fk(skeleton: Skeleton, with_end_sites: bool):
+    return jax.jit(lambda v: _fk(v, skeleton=skeleton, with_end_sites=with_end_sites))
+
+
+def forward_kinematics(skeleton: Skeleton, values, with_end_sites: bool = False) -> jax.Array:
+    """World joint positions.
+
+    Args:
+        skeleton: the joint tree (static: one compiled function per skeleton).
+        values: (..., C) channel values in BVH order (degrees, file length units).
+        with_end_sites: append the End Site positions after the joints.
+    Returns:
+        (..., J, 3) world positions (``J + n_end_sites`` rows with end sites).
+    """
+    return _jitted_fk(skeleton, bool(with_end_sites))(jnp.asarray(values))
+
+
+def fk_function(skeleton: Skeleton, with_end_sites: bool = False):
+    """The traceable (un-jitted) FK ``values (..., C) -> (..., J, 3)`` for use inside jit."""
+    return lambda v: _fk(v, skeleton=skeleton, with_end_sites=with_end_sites)
+
+
+def numpy_positions(skeleton: Skeleton, values: np.ndarray, with_end_sites=False) -> np.ndarray:
+    """FK evaluated and returned as a NumPy float64 array."""
+    return np.asarray(forward_kinematics(skeleton, np.asarray(values, np.float64), with_end_sites))
