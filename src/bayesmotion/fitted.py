@@ -1,0 +1,135 @@
+"""FittedHGPDM: a fitted model (immutable), its training-trial records and accessors."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .data.motion import MotionDataset
+from .data.skeleton import Skeleton
+from .errors import BayesmotionError
+from .model import HGPDM, LogPosterior, ModelData, constrained, encode_trial, trial_styles
+
+
+class TrialRecord(NamedTuple):
+    """What a fitted model remembers of each training trial.
+
+    Attributes:
+        name: trial name.
+        labels: factor -> level.
+        n_frames: frames in the trial.
+        anchors: per actor, the decoding anchor (see PoseCodec.encode).
+        offsets: per actor, (J, 3) bone offsets of that actor's skeleton.
+    """
+
+    name: str
+    labels: dict
+    n_frames: int
+    anchors: tuple
+    offsets: tuple
+
+
+def trial_records(dataset: MotionDataset, codecs, root_mode) -> tuple[TrialRecord, ...]:
+    out = []
+    for t in dataset:
+        enc = encode_trial(codecs, t, root_mode)
+        out.append(TrialRecord(t.name, dict(t.labels), t.n_frames,
+                               tuple(np.asarray(e.anchor) for e in enc),
+                               tuple(np.asarray(m.skeleton.offsets) for m in t.actors)))
+    return tuple(out)
+
+
+@dataclass(frozen=True, eq=False)
+class FittedHGPDM:
+    """A hierarchical GPDM at its MAP estimate.
+
+    Attributes:
+        spec: the resolved HGPDM specification.
+        params: unconstrained MAP parameters (see bayesmotion.params).
+        codecs: per actor slot, the PoseCodec between motions and Y.
+        levels: factor -> ordered level names.
+        data: the training data the posterior conditions on.
+        trials: per training trial, a TrialRecord.
+        fps: frame rate of the training data.
+        diagnostics: convergence diagnostics of the fit.
+    """
+
+    spec: HGPDM
+    params: dict
+    codecs: tuple
+    levels: dict
+    data: ModelData
+    trials: tuple
+    fps: float
+    diagnostics: dict = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ accessors
+    @property
+    def n_actors(self) -> int:
+        return len(self.codecs)
+
+    @property
+    def log_posterior_fn(self) -> LogPosterior:
+        return LogPosterior(self.spec, self.data)
+
+    def log_posterior(self, params: dict | None = None, jitter: float = 1e-8) -> float:
+        """Joint log-posterior (eq. 12) at ``params`` (default: the MAP)."""
+        p = self.params if params is None else params
+        return float(self.log_posterior_fn({k: jnp.asarray(v) for k, v in p.items()}, jitter))
+
+    def layer_terms(self, jitter: float = 1e-8) -> dict[str, float]:
+        terms = self.log_posterior_fn.layer_terms(
+            {k: jnp.asarray(v) for k, v in self.params.items()}, jitter)
+        return {k: float(v) for k, v in terms.items()}
+
+    @property
+    def hyperparameters(self) -> dict[str, np.ndarray]:
+        """gamma, beta, alpha (constrained, positive)."""
+        return {k: np.asarray(v) for k, v in constrained(self.params).items()}
+
+    def styles(self) -> dict[str, np.ndarray]:
+        """factor -> (R, K_f) training style vectors."""
+        return {k: np.asarray(v) for k, v in trial_styles(self.params, self.data).items()}
+
+    def trial_slices(self) -> list[slice]:
+        ends = np.cumsum(self.data.lengths)
+        return [slice(int(e - n), int(e)) for e, n in zip(ends, self.data.lengths, strict=True)]
+
+    def latents(self, trial: int) -> dict[str, np.ndarray]:
+        """X (A, T, Q_X) and I (T, Q_I) of training trial ``trial``."""
+        sl = self.trial_slices()[trial]
+        return {"X": np.asarray(self.params["X"][:, sl]), "I": np.asarray(self.params["I"][sl])}
+
+    def skeleton(self, actor: int = 0, trial: int | None = None) -> Skeleton:
+        """The skeleton of an actor slot, with the bone offsets of a training trial."""
+        sk = self.codecs[actor].skeleton
+        return sk if trial is None else sk.with_offsets(self.trials[trial].offsets[actor])
+
+    def level_index(self, factor: str, level: str) -> int:
+        if factor not in self.levels:
+            raise BayesmotionError(f"model has no style factor {factor!r}; it has "
+                                   f"{list(self.levels)}")
+        if level not in self.levels[factor]:
+            raise BayesmotionError(f"unknown {factor} {level!r}; the model knows "
+                                   f"{list(self.levels[factor])}")
+        return self.levels[factor].index(level)
+
+    def with_params(self, params: dict) -> FittedHGPDM:
+        from dataclasses import replace
+
+        return replace(self, params={k: np.asarray(v) for k, v in params.items()})
+
+    # ------------------------------------------------------------------ files
+    def save(self, path) -> None:
+        """Write the model as .npz arrays + JSON metadata, atomically, without pickle."""
+        from .io import save_model
+
+        save_model(self, path)
+
+    def to_device(self):
+        """Parameters as JAX arrays (for use inside jitted code)."""
+        return jax.tree_util.tree_map(jnp.asarray, self.params)

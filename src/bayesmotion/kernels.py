@@ -1,0 +1,88 @@
+"""Kernels of the hierarchical GPDM as pure JAX functions (Taubert et al. 2012).
+
+Gram-matrix functions of two input sets; the white-noise term is added by the layer that owns
+the training inputs (it exists only on the diagonal of a training Gram matrix).
+
+Notation (code name <- paper):
+    gamma = (gamma1, gamma2, gamma3)  bottom layer, eq. 2
+    beta  = (beta1, beta2, beta3)     interaction layer
+    alpha = (alpha_rbf, alpha_ls[lag 1..o], alpha_lin[lag 1..o], alpha_noise)  dynamics, eq. 10
+            (order o = 2: alpha1, alpha2, alpha3, alpha4, alpha5, alpha6 of the paper)
+    S     = per-frame style vectors, one (N, K_f) matrix per style factor (couple c, emotion e)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax.numpy as jnp
+
+
+def sqdist(A: jnp.ndarray, B: jnp.ndarray) -> jnp.ndarray:
+    """Squared Euclidean distances. A: (N, Q), B: (M, Q) -> (N, M), clipped at 0.
+
+    Uses |a|^2 + |b|^2 - 2 a.b (one matmul); no square root, so gradients are finite at 0.
+    """
+    d = jnp.sum(A**2, -1)[:, None] + jnp.sum(B**2, -1)[None, :] - 2.0 * A @ B.T
+    return jnp.maximum(d, 0.0)
+
+
+def rbf(A, B, variance, inv_lengthscale):
+    """variance * exp(-inv_lengthscale / 2 * |a - b|^2). A: (N, Q), B: (M, Q) -> (N, M)."""
+    return variance * jnp.exp(-0.5 * inv_lengthscale * sqdist(A, B))
+
+
+def style_gram(Sa: Sequence[jnp.ndarray], Sb: Sequence[jnp.ndarray]) -> jnp.ndarray | float:
+    """Product over style factors of inner products, prod_f (s_f^T s_f').
+
+    Sa, Sb: per factor, (N, K_f) and (M, K_f) per-frame style vectors. With one-hot vectors this
+    is 1 between frames of the same style and exactly 0 otherwise (Wang et al. 2007).
+    Returns 1.0 when there are no factors.
+    """
+    G = 1.0
+    for a, b in zip(Sa, Sb, strict=True):
+        G = G * (a @ b.T)
+    return G
+
+
+def bottom_kernel(A, B, gamma):
+    """Bottom layer X -> Y, eq. 2 without noise: gamma1 exp(-gamma2/2 |x - x'|^2)."""
+    return rbf(A, B, gamma[0], gamma[1])
+
+
+def interaction_kernel(A, B, Sa, Sb, beta):
+    """Interaction layer I -> [X1, X2]: (c^T c')(e^T e') beta1 exp(-beta2/2 |i - i'|^2)."""
+    return style_gram(Sa, Sb) * rbf(A, B, beta[0], beta[1])
+
+
+def dynamics_kernel(lags_a: Sequence[jnp.ndarray], lags_b: Sequence[jnp.ndarray], Sa, Sb, alpha):
+    """Dynamics layer, eq. 10 without noise, for a GPDM of order o = len(lags_a).
+
+    k = prod_f (s_f^T s_f') * [alpha_rbf exp(-sum_l alpha_ls[l]/2 |i_{t-l} - i'_{t-l}|^2)
+                               + sum_l alpha_lin[l] i_{t-l}^T i'_{t-l}]
+
+    Style is constant within a trial, so both lags of one input share one style vector; the
+    factor therefore appears once (the paper's "style of both lags").
+
+    Args:
+        lags_a: o arrays (N, Q): I_{t-1}, ..., I_{t-o} for each output frame t.
+        lags_b: o arrays (M, Q).
+        alpha: (2 + 2 o,) positive parameters.
+    """
+    o = len(lags_a)
+    log_rbf = 0.0
+    lin = 0.0
+    for l in range(o):
+        log_rbf = log_rbf - 0.5 * alpha[1 + l] * sqdist(lags_a[l], lags_b[l])
+        lin = lin + alpha[1 + o + l] * (lags_a[l] @ lags_b[l].T)
+    return style_gram(Sa, Sb) * (alpha[0] * jnp.exp(log_rbf) + lin)
+
+
+def dynamics_diag(lags: Sequence[jnp.ndarray], S, alpha):
+    """Diagonal of dynamics_kernel(lags, lags, S, S) without forming the matrix. -> (N,)."""
+    o = len(lags)
+    style = 1.0
+    for s in S:
+        style = style * jnp.sum(s * s, -1)
+    lin = sum(alpha[1 + o + l] * jnp.sum(lags[l] ** 2, -1) for l in range(o))
+    return style * (alpha[0] + lin)

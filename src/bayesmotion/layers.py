@@ -1,0 +1,112 @@
+"""Log-likelihoods of the layers: GP-LVM (eq. 1-3) and GPDM of order 1 or 2 (eq. 9, 11).
+
+All are computed through a Cholesky factor, never an inverse. Outside the support (a kernel
+matrix that is not positive definite even with jitter) they return -inf, never NaN.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.linalg import cho_solve
+
+from . import kernels
+
+LOG_2PI = float(np.log(2 * np.pi))
+
+
+def safe_cholesky(K: jnp.ndarray, jitter: float | jnp.ndarray = 0.0):
+    """Lower Cholesky factor of K + jitter * mean(diag K) * I.
+
+    Returns (L, ok): ``ok`` is False when the factorisation failed (NaN entries); the fitting
+    driver then retries with a larger jitter and reports it.
+    """
+    n = K.shape[0]
+    scale = jnp.mean(jnp.diag(K))
+    L = jnp.linalg.cholesky(K + (jitter * scale) * jnp.eye(n, dtype=K.dtype))
+    ok = jnp.all(jnp.isfinite(L))
+    return jnp.where(ok, L, jnp.eye(n, dtype=K.dtype)), ok
+
+
+def gaussian_loglik(K: jnp.ndarray, Y: jnp.ndarray, jitter=0.0) -> jnp.ndarray:
+    """sum_d log N(Y[:, d] | 0, K): D independent columns sharing one covariance (eq. 1).
+
+    log p = -D/2 log|K| - 1/2 tr(K^-1 Y Y^T) - N D/2 log 2 pi, with log|K| = 2 sum log diag L
+    and tr(K^-1 Y Y^T) = sum(Y * cho_solve(L, Y)).
+
+    Args:
+        K: (N, N) covariance. Y: (N, D) outputs.
+    """
+    N, D = Y.shape
+    L, ok = safe_cholesky(K, jitter)
+    alpha = cho_solve((L, True), Y)
+    val = -0.5 * jnp.sum(Y * alpha) - D * jnp.sum(jnp.log(jnp.diag(L))) - 0.5 * N * D * LOG_2PI
+    return jnp.where(ok & jnp.isfinite(val), val, -jnp.inf)
+
+
+def gplvm_loglik(X, Y, gamma, jitter=0.0):
+    """Bottom layer: log p(Y | X, gamma), K_Y = gamma1 exp(-gamma2/2 |x-x'|^2) + gamma3^-1 I.
+
+    X: (N, Q) latents, Y: (N, D) poses, gamma: (3,) positive.
+    """
+    K = kernels.bottom_kernel(X, X, gamma) + jnp.eye(X.shape[0]) / gamma[2]
+    return gaussian_loglik(K, Y, jitter)
+
+
+def style_gplvm_loglik(I, Z, S, beta, jitter=0.0):
+    """Interaction layer: log p(Z | I, beta, S) with the multifactor kernel.
+
+    K_X = (c c'^T)(e e'^T) o beta1 exp(-beta2/2 |i-i'|^2) + beta3^-1 I.
+    I: (N, Q_I), Z: (N, D_Z) stacked actor latents [X1, X2], S: per-factor (N, K_f).
+    """
+    K = kernels.interaction_kernel(I, I, S, S, beta) + jnp.eye(I.shape[0]) / beta[2]
+    return gaussian_loglik(K, Z, jitter)
+
+
+def dynamics_io(I: jnp.ndarray, index: "DynamicsIndex"):
+    """Inputs (o lags) and outputs of the dynamics GP, gathered by precomputed indices."""
+    lags = [I[index.lag[l]] for l in range(index.order)]
+    return lags, I[index.out]
+
+
+class DynamicsIndex:
+    """Frame indices of a multi-trial GPDM of order o; static (NumPy) bookkeeping.
+
+    For every trial with frames [s, e), the outputs are frames s+o .. e-1 and lag l (1..o) of
+    output t is frame t-l: the Markov chain restarts at each trial, whose first o frames get the
+    isotropic Gaussian prior instead (eq. 9 / 11).
+    """
+
+    def __init__(self, lengths, order: int):
+        if order not in (1, 2):
+            raise ValueError(f"dynamics order must be 1 or 2, got {order}")
+        lengths = [int(n) for n in lengths]
+        if min(lengths) <= order:
+            raise ValueError(f"every trial needs more than {order} frames; got {min(lengths)}")
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        self.order = order
+        self.lengths = np.asarray(lengths)
+        self.starts = starts
+        self.out = np.concatenate([np.arange(s + order, s + n) for s, n in zip(starts, lengths)])
+        self.lag = [self.out - l for l in range(1, order + 1)]
+        self.first = np.concatenate([np.arange(s, s + order) for s in starts])
+        self.trial_of_frame = np.repeat(np.arange(len(lengths)), lengths)
+
+
+def gpdm_loglik(I, S, alpha, index: DynamicsIndex, jitter=0.0, prior_var=1.0):
+    """Dynamics layer: log p(I | alpha, S) for a GPDM of order 1 or 2 over many trials.
+
+    log p = log N(I_out | 0, K_I) (columns independent, eq. 11)
+            + sum over each trial's first o frames of log N(i | 0, prior_var * I).
+
+    I: (N, Q) latents of all trials stacked; S: per-factor (N, K_f) per-frame style.
+    """
+    lags, out = dynamics_io(I, index)
+    S_out = [s[index.out] for s in S]
+    o = index.order
+    K = kernels.dynamics_kernel(lags, lags, S_out, S_out, alpha)
+    K = K + jnp.eye(out.shape[0]) / alpha[1 + 2 * o]
+    ll = gaussian_loglik(K, out, jitter)
+    first = I[index.first]
+    ll0 = -0.5 * jnp.sum(first**2) / prior_var - 0.5 * first.size * (LOG_2PI + jnp.log(prior_var))
+    return ll + ll0
