@@ -1,191 +1,315 @@
 """BVH reader and writer.
 
-``read_bvh`` accepts any rotation order per joint, 0-6 channels per joint, End Sites, CRLF/LF
-line ends, tabs and scientific notation. Any problem raises :class:`~bayesmotion.BVHError`
-naming the line. ``write_bvh`` writes the shortest decimal that reads back to the same float64
-(``repr``), so read -> write -> read is exact; ``precision=k`` writes k decimals instead.
+``parse_bvh``/``read_bvh`` accept any rotation order per joint, 0-6 channels per joint, End Sites,
+CRLF/LF/CR line ends, tabs, a UTF-8 byte-order mark and scientific notation. Anything else raises
+:class:`~bayesmotion.BVHError` naming the line and the problem, never another exception.
+
+``write_bvh`` writes the shortest decimal that reads back to the same float64 (``repr``), so
+read -> write -> read is bit-exact for channel values, offsets and fps; ``precision=k`` writes k
+decimals instead.
+
+Frame rate: ``fps = 1 / Frame Time``, snapped to the nearest integer when the written frame time
+agrees with ``1 / round(fps)`` to the digits it was written with (``.0083333`` -> 120.0).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import re
 import tempfile
+from collections.abc import Iterator
+from decimal import Context, Decimal
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import BVHError
+from ..errors import BayesmotionError, BVHError
 from .motion import Motion
 from .skeleton import VALID_CHANNELS, Skeleton
 
 _TOKEN = re.compile(r"\S+")
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)  # ASCII digits only
+_COUNT = re.compile(r"\d+", re.ASCII)
+_DECIMAL = Context(prec=60)  # exact enough for 1 / frame time of any float64
 
 
+# ----------------------------------------------------------------------------- reading
 class _Tokens:
-    """Whitespace tokens of the HIERARCHY section with their 1-based line numbers."""
+    """Whitespace tokens of the HIERARCHY section with their 1-based line numbers.
 
-    def __init__(self, lines: list[str], where: str):
+    Args:
+        lines: the lines of the hierarchy (everything before ``MOTION``).
+        where: source name for messages.
+        end: what running out of tokens means, e.g. ``"end of file"``.
+        end_line: the line reported when tokens run out.
+    """
+
+    def __init__(self, lines: list[str], where: str, end: str, end_line: int):
         self.items = [(m.group(0), i + 1) for i, line in enumerate(lines)
                       for m in _TOKEN.finditer(line)]
         self.pos = 0
-        self.where = where
-        self.last_line = len(lines)
+        self.where, self.end, self.end_line = where, end, end_line
 
     def error(self, msg: str, line: int | None = None) -> BVHError:
         if line is None:
-            line = self.items[self.pos][1] if self.pos < len(self.items) else self.last_line
+            line = self.items[self.pos][1] if self.pos < len(self.items) else self.end_line
         return BVHError(f"{self.where}: line {line}: {msg}")
 
     def next(self, what: str) -> tuple[str, int]:
         if self.pos >= len(self.items):
-            raise self.error(f"unexpected end of file, expected {what}")
-        tok = self.items[self.pos]
+            raise self.error(f"unexpected {self.end}, expected {what}")
         self.pos += 1
-        return tok
+        return self.items[self.pos - 1]
 
-    def expect(self, word: str) -> int:
-        tok, line = self.next(repr(word))
+    def expect(self, word: str, context: str = "") -> int:
+        tok, line = self.next(repr(word) + context)
         if tok != word:
-            raise self.error(f"expected {word!r}, found {tok!r}", line)
+            raise self.error(f"expected {word!r}{context}, found {_short(tok)}", line)
         return line
 
-    def peek(self) -> str | None:
-        return self.items[self.pos][0] if self.pos < len(self.items) else None
+    def peek(self) -> tuple[str, int] | None:
+        return self.items[self.pos] if self.pos < len(self.items) else None
 
     def number(self, what: str) -> float:
-        tok, line = self.next(what)
-        try:
-            x = float(tok)
-        except ValueError:
-            raise self.error(f"expected a number for {what}, found {tok!r}", line) from None
-        if not math.isfinite(x):
-            raise self.error(f"{what} is not finite ({tok!r})", line)
-        return x
+        tok, line = self.next(f"a number for {what}")
+        return _number(tok, what, lambda msg: self.error(msg, line))
+
+    def vector(self, what: str) -> list[float]:
+        return [self.number(f"{what} ({axis})") for axis in "XYZ"]
 
 
-def _parse_joint(tk: _Tokens, parent: int, acc: dict) -> None:
-    name_tok, line = tk.next("a joint name")
-    if name_tok == "{":
-        raise tk.error("joint has no name", line)
-    if name_tok in acc["names"]:
-        raise tk.error(f"duplicate joint name {name_tok!r}", line)
+def _short(tok: str) -> str:
+    return repr(tok if len(tok) <= 40 else tok[:40] + "...")
+
+
+def _number(tok: str, what: str, error) -> float:
+    """A finite decimal number (``1``, ``-.5``, ``3e-05``); anything else is ``error(msg)``."""
+    if not _NUMBER.fullmatch(tok):
+        if tok.lower().lstrip("+-") in ("nan", "inf", "infinity"):
+            raise error(f"{what} is {tok!r}; NaN and infinity are not allowed")
+        raise error(f"expected a number for {what}, found {_short(tok)}")
+    x = float(tok)
+    if not math.isfinite(x):
+        raise error(f"{what} {_short(tok)} overflows float64")
+    return x
+
+
+def _open_joint(tk: _Tokens, parent: int, acc: dict) -> int:
+    """Parse ``name { OFFSET x y z CHANNELS n c1..cn`` and record the joint; returns its index."""
+    name, line = tk.next("a joint name")
+    if name in ("{", "}"):
+        raise tk.error(f"joint has no name (found {name!r})", line)
+    if name in acc["lines"]:
+        first = acc["lines"][name]
+        raise tk.error(f"duplicate joint name {name!r} (first defined at line {first}); a BVH "
+                       "hierarchy is a tree, so a joint cannot appear twice", line)
     j = len(acc["names"])
-    acc["names"].append(name_tok)
+    acc["names"].append(name)
+    acc["lines"][name] = line
     acc["parents"].append(parent)
-    tk.expect("{")
-    tk.expect("OFFSET")
-    acc["offsets"].append([tk.number(f"OFFSET of {name_tok}") for _ in range(3)])
-    tk.expect("CHANNELS")
-    n_tok, line = tk.next("a channel count")
-    if not n_tok.isdigit() or int(n_tok) > 6:
-        raise tk.error(f"joint {name_tok!r}: channel count must be 0-6, found {n_tok!r}", line)
-    chans = []
-    for _ in range(int(n_tok)):
-        c, line = tk.next("a channel name")
+    tk.expect("{", f" after joint {name!r}")
+    tk.expect("OFFSET", f" in joint {name!r}")
+    acc["offsets"].append(tk.vector(f"OFFSET of {name!r}"))
+    tk.expect("CHANNELS", f" in joint {name!r}")
+    acc["channels"].append(_channels(tk, name))
+    return j
+
+
+def _channels(tk: _Tokens, name: str) -> tuple[str, ...]:
+    n_tok, line = tk.next(f"the channel count of {name!r}")
+    if not _COUNT.fullmatch(n_tok) or len(n_tok) > 3 or int(n_tok) > 6:
+        raise tk.error(f"joint {name!r}: channel count must be 0-6, found {_short(n_tok)}", line)
+    chans: list[str] = []
+    for k in range(int(n_tok)):
+        c, line = tk.next(f"channel {k + 1} of {n_tok} of joint {name!r}")
         if c not in VALID_CHANNELS:
-            raise tk.error(f"joint {name_tok!r}: unknown channel {c!r}", line)
+            raise tk.error(f"joint {name!r}: channel {k + 1} of {n_tok} is {_short(c)}, not one "
+                           f"of {', '.join(VALID_CHANNELS)} (wrong channel count?)", line)
         if c in chans:
-            raise tk.error(f"joint {name_tok!r}: channel {c!r} listed twice", line)
+            raise tk.error(f"joint {name!r}: channel {c!r} listed twice", line)
         chans.append(c)
-    acc["channels"].append(tuple(chans))
-    while True:
+    return tuple(chans)
+
+
+def _end_site(tk: _Tokens, j: int, acc: dict, line: int) -> None:
+    name = acc["names"][j]
+    tk.expect("Site", " after 'End'")
+    if j in acc["end_sites"]:
+        raise tk.error(f"joint {name!r} has two End Sites", line)
+    tk.expect("{", " after 'End Site'")
+    tk.expect("OFFSET", " in End Site")
+    acc["end_sites"][j] = tk.vector(f"End Site OFFSET of {name!r}")
+    tk.expect("}", f" closing the End Site of {name!r}")
+
+
+def _parse_hierarchy(tk: _Tokens) -> Skeleton:
+    """The joint tree, parsed with an explicit stack (no recursion limit on depth)."""
+    tk.expect("HIERARCHY", " as the first word of a BVH file")
+    root_line = tk.expect("ROOT", " after 'HIERARCHY'")
+    acc = {"names": [], "lines": {}, "parents": [], "offsets": [], "channels": [],
+           "end_sites": {}}
+    stack = [_open_joint(tk, -1, acc)]
+    while stack:
+        j = stack[-1]
+        if tk.peek() is None:
+            open_ = ", ".join(repr(acc["names"][k]) for k in stack)
+            raise tk.error(f"unbalanced braces: unexpected {tk.end} with {len(stack)} joint(s) "
+                           f"still open ({open_}); expected 'JOINT', 'End Site' or '}}'")
         tok, line = tk.next("'JOINT', 'End Site' or '}'")
         if tok == "}":
-            return
-        if tok == "JOINT":
-            _parse_joint(tk, j, acc)
+            stack.pop()
+        elif tok == "JOINT":
+            stack.append(_open_joint(tk, j, acc))
         elif tok == "End":
-            tk.expect("Site")
-            if j in acc["end_sites"]:
-                raise tk.error(f"joint {name_tok!r} has two End Sites", line)
-            tk.expect("{")
-            tk.expect("OFFSET")
-            acc["end_sites"][j] = [tk.number("End Site OFFSET") for _ in range(3)]
-            tk.expect("}")
+            _end_site(tk, j, acc, line)
         else:
-            raise tk.error(f"expected 'JOINT', 'End Site' or '}}', found {tok!r}", line)
+            raise tk.error(f"in joint {acc['names'][j]!r}: expected 'JOINT', 'End Site' or '}}', "
+                           f"found {_short(tok)}", line)
+    extra = tk.peek()
+    if extra is not None:
+        what = ("unbalanced braces: extra '}'" if extra[0] == "}"
+                else f"unexpected {_short(extra[0])}")
+        raise tk.error(f"{what} after the root joint closed (one ROOT per file)", extra[1])
+    try:
+        skeleton = Skeleton(acc["names"], acc["parents"], np.array(acc["offsets"]),
+                            acc["channels"], acc["end_sites"])
+    except BayesmotionError as e:
+        raise tk.error(f"invalid hierarchy: {e}", root_line) from None
+    return skeleton
 
 
-def parse_bvh(text: str, where: str = "<string>", name: str = "") -> Motion:
-    """Parse BVH text into a :class:`Motion`. ``where`` names the source in error messages."""
-    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+def parse_bvh(text: str | bytes, where: str = "<string>", name: str = "") -> Motion:
+    """Parse BVH text into a :class:`Motion`.
+
+    Args:
+        text: the file content (``bytes`` are decoded as UTF-8, else Latin-1).
+        where: names the source in error messages.
+        name: the motion's name.
+    Returns:
+        the motion; ``values`` is (frames, channels) in file order.
+    Raises:
+        BVHError: malformed content, with the line number and the problem.
+    """
+    if isinstance(text, bytes | bytearray):
+        text = _decode(bytes(text))
+    lines = text.removeprefix("\ufeff").replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    _check_text(lines, where)
     motion_at = next((i for i, l in enumerate(lines) if l.strip() == "MOTION"), None)
     if motion_at is None:
-        raise BVHError(f"{where}: line {len(lines)}: no MOTION section found")
-    tk = _Tokens(lines[:motion_at], where)
-    tk.expect("HIERARCHY")
-    tk.expect("ROOT")
-    acc = {"names": [], "parents": [], "offsets": [], "channels": [], "end_sites": {}}
-    _parse_joint(tk, -1, acc)
-    if tk.peek() is not None:
-        raise tk.error(f"unexpected {tk.peek()!r} after the root joint (one ROOT per file)")
-    skeleton = Skeleton(acc["names"], acc["parents"], np.array(acc["offsets"]),
-                        acc["channels"], acc["end_sites"])
-    values, fps = _parse_motion(lines, motion_at, skeleton.n_channels, where)
-    return Motion(skeleton, values, fps, name)
+        tk = _Tokens(lines, where, "end of file", len(lines))
+        _parse_hierarchy(tk)
+        raise BVHError(f"{where}: line {len(lines)}: no MOTION section after the hierarchy")
+    tk = _Tokens(lines[:motion_at], where, f"'MOTION' (line {motion_at + 1})", motion_at + 1)
+    skeleton = _parse_hierarchy(tk)
+    values, fps = _parse_motion(lines, motion_at, skeleton, where)
+    try:
+        return Motion(skeleton, values, fps, name)
+    except BayesmotionError as e:  # defensive: _parse_motion checks what Motion checks
+        raise BVHError(f"{where}: line {motion_at + 1}: invalid motion: {e}") from None
 
 
-def _header(lines: list[str], i: int, key: str, where: str) -> str:
+def _check_text(lines: list[str], where: str) -> None:
+    if not any(l.strip() for l in lines):
+        raise BVHError(f"{where}: line 1: the file is empty")
+    for i, l in enumerate(lines):
+        if "\x00" in l:
+            raise BVHError(f"{where}: line {i + 1}: NUL byte: binary data, not a BVH text file")
+
+
+def _header(lines: list[str], i: int, key: str, where: str) -> tuple[str, int]:
+    """The text after ``key`` on the next non-blank line at or after ``i``; and that index."""
+    while i < len(lines) and not lines[i].strip():
+        i += 1
     if i >= len(lines):
-        raise BVHError(f"{where}: line {i + 1}: unexpected end of file, expected '{key}'")
+        raise BVHError(f"{where}: line {len(lines)}: unexpected end of file, expected '{key}'")
     line = lines[i].strip()
     if not line.startswith(key):
-        raise BVHError(f"{where}: line {i + 1}: expected '{key}', found {line[:40]!r}")
-    return line[len(key):].strip()
+        raise BVHError(f"{where}: line {i + 1}: expected '{key}', found {_short(line)}")
+    return line[len(key):].strip(), i
 
 
-def _parse_motion(lines, motion_at, n_channels, where):
-    frames_txt = _header(lines, motion_at + 1, "Frames:", where)
-    if not frames_txt.isdigit():
-        raise BVHError(f"{where}: line {motion_at + 2}: frame count {frames_txt!r} is not an integer")
+def _parse_motion(lines: list[str], motion_at: int, skeleton: Skeleton,
+                  where: str) -> tuple[np.ndarray, float]:
+    """(frames, channels) values and fps from the lines after ``MOTION``."""
+    frames_txt, i = _header(lines, motion_at + 1, "Frames:", where)
+    if not _COUNT.fullmatch(frames_txt) or len(frames_txt) > 12:
+        raise BVHError(f"{where}: line {i + 1}: frame count {_short(frames_txt)} is not a "
+                       "non-negative integer below 10**12")
     n_frames = int(frames_txt)
     if n_frames == 0:
-        raise BVHError(f"{where}: line {motion_at + 2}: the file has zero frames")
-    ft_txt = _header(lines, motion_at + 2, "Frame Time:", where)
-    try:
-        frame_time = float(ft_txt)
-    except ValueError:
-        raise BVHError(f"{where}: line {motion_at + 3}: frame time {ft_txt!r} is not a number") from None
-    if not (math.isfinite(frame_time) and frame_time > 0):
-        raise BVHError(f"{where}: line {motion_at + 3}: frame time must be positive, got {ft_txt}")
-    start = motion_at + 3
+        raise BVHError(f"{where}: line {i + 1}: the file has zero frames ('Frames: 0')")
+    if skeleton.n_channels == 0:
+        raise BVHError(f"{where}: line {motion_at + 1}: the hierarchy declares no channels, so "
+                       "frames cannot be stored")
+    ft_txt, i = _header(lines, i + 1, "Frame Time:", where)
+    fps = _fps(ft_txt, lambda msg: BVHError(f"{where}: line {i + 1}: {msg}"))
+    return _frames(lines, i + 1, n_frames, skeleton, where), fps
+
+
+def _fps(ft_txt: str, error) -> float:
+    """Frames per second from the ``Frame Time:`` text (see the module docstring).
+
+    ``1 / ft`` is computed in decimal from the text, so the writer can always pick a text that
+    reads back to a given float64 fps exactly.
+    """
+    ft = _number(ft_txt, "the frame time", error)
+    if not ft > 0:
+        raise error(f"frame time must be positive, got {ft_txt!r}")
+    ft_dec = Decimal(ft_txt)
+    fps = float(_DECIMAL.divide(1, ft_dec))
+    if not math.isfinite(fps):
+        raise error(f"frame time {ft_txt!r} is too small (fps overflows)")
+    n = round(fps)
+    if n >= 1 and abs(fps - n) < 1e-4 * fps:
+        # snap when the text agrees with 1/n to within one unit of its last written digit
+        last_digit = Decimal(1).scaleb(ft_dec.as_tuple().exponent)
+        if abs(_DECIMAL.subtract(ft_dec, _DECIMAL.divide(1, n))) <= last_digit:
+            return float(n)
+    return fps
+
+
+def _frames(lines: list[str], start: int, n_frames: int, skeleton: Skeleton,
+            where: str) -> np.ndarray:
+    C = skeleton.n_channels
     rows = []
     for i in range(start, len(lines)):
+        line = lines[i]
+        if not line.strip():
+            continue
         if len(rows) == n_frames:
-            if lines[i].strip():
-                raise BVHError(f"{where}: line {i + 1}: more frame lines than 'Frames: {n_frames}'")
-            continue
-        if not lines[i].strip():
-            continue
-        toks = lines[i].split()
-        if len(toks) != n_channels:
-            raise BVHError(f"{where}: line {i + 1}: expected {n_channels} channel values, "
-                           f"found {len(toks)}")
-        try:
-            row = [float(t) for t in toks]
-        except ValueError:
-            bad = next(t for t in toks if not _is_float(t))
-            raise BVHError(f"{where}: line {i + 1}: non-numeric value {bad!r}") from None
-        if not all(math.isfinite(x) for x in row):
-            raise BVHError(f"{where}: line {i + 1}: NaN or infinite channel value")
-        rows.append(row)
+            raise BVHError(f"{where}: line {i + 1}: more frame lines than 'Frames: {n_frames}'")
+        toks = line.split()
+        if len(toks) != C:
+            raise BVHError(f"{where}: line {i + 1}: expected {C} channel values (frame "
+                           f"{len(rows) + 1} of {n_frames}), found {len(toks)}")
+        rows.append(_row(toks, line, lambda msg, i=i: BVHError(f"{where}: line {i + 1}: {msg}"),
+                         skeleton))
     if len(rows) < n_frames:
-        raise BVHError(f"{where}: line {len(lines)}: file is truncated: 'Frames: {n_frames}' "
+        raise BVHError(f"{where}: line {len(lines)}: the file is truncated: 'Frames: {n_frames}' "
                        f"but only {len(rows)} frame lines")
-    fps = 1.0 / frame_time
-    if abs(fps - round(fps)) < 1e-4 * fps:  # "Frame Time: .0083333" means 120 fps
-        fps = float(round(fps))
-    return np.array(rows, dtype=np.float64).reshape(n_frames, n_channels), fps
+    return np.array(rows, dtype=np.float64).reshape(n_frames, C)
 
 
-def _is_float(t: str) -> bool:
+def _row(toks: list[str], line: str, error, skeleton: Skeleton) -> list[float]:
+    """One frame's floats; the fast path is plain ``float``, the strict check runs on failure."""
     try:
-        float(t)
-        return True
+        if line.isascii() and "_" not in line:
+            row = [float(t) for t in toks]
+            if all(math.isfinite(x) for x in row):
+                return row
     except ValueError:
-        return False
+        pass
+    names = skeleton.channel_names
+    return [_number(t, f"channel {c + 1} ({names[c]})", error) for c, t in enumerate(toks)]
+
+
+def _decode(raw: bytes) -> str:
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return raw.decode("latin-1")
 
 
 def read_bvh(path: str | os.PathLike) -> Motion:
@@ -203,13 +327,10 @@ def read_bvh(path: str | os.PathLike) -> Motion:
         raw = path.read_bytes()
     except OSError as e:
         raise BVHError(f"{path}: cannot read file: {e.strerror or e}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        text = raw.decode("latin-1")
-    return parse_bvh(text, where=str(path), name=path.stem)
+    return parse_bvh(_decode(raw), where=str(path), name=path.stem)
 
 
+# ----------------------------------------------------------------------------- writing
 def _fmt(x: float, precision: int | None) -> str:
     if precision is None:
         s = repr(float(x))
@@ -217,31 +338,45 @@ def _fmt(x: float, precision: int | None) -> str:
     return f"{x:.{precision}f}"
 
 
+def _frame_time_text(fps: float) -> str:
+    """The shortest of a few frame-time texts that :func:`_fps` reads back as ``fps`` exactly."""
+    for digits in (None, 17, 21, 25, 30):
+        exact = _DECIMAL.divide(1, Decimal(fps))
+        txt = repr(1.0 / fps) if digits is None else f"{exact:.{digits}g}"
+        if _fps(txt, BVHError) == fps:
+            break
+    return txt
+
+
 def format_bvh(motion: Motion, precision: int | None = None) -> str:
-    """BVH text of a motion (see :func:`write_bvh`)."""
+    """BVH text of a motion (see :func:`write_bvh`); tab indents, LF line ends."""
+    if precision is not None and (isinstance(precision, bool) or not isinstance(precision, int)
+                                  or precision < 0):
+        raise BayesmotionError(f"precision must be None or a non-negative int, got {precision!r}")
     sk = motion.skeleton
+    children = [[] for _ in sk.names]
+    for j, p in enumerate(sk.parents):
+        if p >= 0:
+            children[p].append(j)
     out = ["HIERARCHY"]
-
-    def joint(j: int, depth: int):
+    stack: list[tuple[int, int, bool]] = [(0, 0, False)]  # (joint, depth, closing?)
+    while stack:
+        j, depth, closing = stack.pop()
         ind = "\t" * depth
-        kind = "ROOT" if sk.parents[j] < 0 else "JOINT"
-        out.append(f"{ind}{kind} {sk.names[j]}")
-        out.append(f"{ind}{{")
+        if closing:
+            if j in sk.end_sites:
+                off = " ".join(_fmt(v, precision) for v in sk.end_sites[j])
+                out += [f"{ind}\tEnd Site", f"{ind}\t{{", f"{ind}\t\tOFFSET {off}", f"{ind}\t}}"]
+            out.append(f"{ind}}}")
+            continue
         off = " ".join(_fmt(v, precision) for v in sk.offsets[j])
-        out.append(f"{ind}\tOFFSET {off}")
-        out.append(f"{ind}\tCHANNELS {len(sk.channels[j])} {' '.join(sk.channels[j])}".rstrip())
-        for c in sk.children(j):
-            joint(c, depth + 1)
-        if j in sk.end_sites:
-            out.append(f"{ind}\tEnd Site")
-            out.append(f"{ind}\t{{")
-            off = " ".join(_fmt(v, precision) for v in sk.end_sites[j])
-            out.append(f"{ind}\t\tOFFSET {off}")
-            out.append(f"{ind}\t}}")
-        out.append(f"{ind}}}")
-
-    joint(0, 0)
-    out += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {repr(1.0 / motion.fps)}"]
+        out += [f"{ind}{'ROOT' if sk.parents[j] < 0 else 'JOINT'} {sk.names[j]}", f"{ind}{{",
+                f"{ind}\tOFFSET {off}",
+                f"{ind}\tCHANNELS {len(sk.channels[j])} {' '.join(sk.channels[j])}".rstrip()]
+        stack.append((j, depth, True))
+        stack += [(c, depth + 1, False) for c in reversed(children[j])]
+    out += ["MOTION", f"Frames: {motion.n_frames}",
+            f"Frame Time: {_frame_time_text(motion.fps)}"]
     out += [" ".join(_fmt(v, precision) for v in row) for row in motion.values.tolist()]
     return "\n".join(out) + "\n"
 
@@ -256,22 +391,42 @@ def write_bvh(motion: Motion, path: str | os.PathLike, precision: int | None = N
     Returns:
         the path written.
     """
-    path = Path(path)
-    text = format_bvh(motion, precision)
-    return atomic_write_text(path, text)
+    return atomic_write_text(Path(path), format_bvh(motion, precision))
 
 
-def atomic_write_text(path: Path, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success it replaces ``path`` (``os.replace``).
+
+    On any exception the temporary file is removed and an existing ``path`` is left untouched.
+    The file gets the usual permissions (``0o666 & ~umask``, or those of the file it replaces).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
     try:
-        with os.fdopen(fd, "w", newline="\n") as f:
-            f.write(text)
+        yield Path(tmp)
+        os.chmod(tmp, _mode_for(path))
         os.replace(tmp, path)
     except BaseException:
-        if os.path.exists(tmp):
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def _mode_for(path: Path) -> int:
+    try:
+        return path.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+def atomic_write_text(path: Path, text: str) -> Path:
+    """Write ``text`` (UTF-8, LF kept as is) to ``path`` through a temporary file."""
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as f:
+        f.write(text)
     return path
