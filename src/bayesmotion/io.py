@@ -87,7 +87,7 @@ def _read_archive(path: Path) -> tuple[dict, dict]:
     if not path.is_file():
         raise ModelFileError(f"{path}: no such model file")
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as e:
         raise ModelFileError(f"{path}: not a bayesmotion model file (unreadable archive: {e})") \

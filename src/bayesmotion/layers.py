@@ -6,6 +6,7 @@ matrix that is not positive definite even with jitter) they return -inf, never N
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.linalg import cho_solve
@@ -107,6 +108,84 @@ def gpdm_loglik(I, S, alpha, index: DynamicsIndex, jitter=0.0, prior_var=1.0):
     K = kernels.dynamics_kernel(lags, lags, S_out, S_out, alpha)
     K = K + jnp.eye(out.shape[0]) / alpha[1 + 2 * o]
     ll = gaussian_loglik(K, out, jitter)
+    first = I[index.first]
+    ll0 = -0.5 * jnp.sum(first**2) / prior_var - 0.5 * first.size * (LOG_2PI + jnp.log(prior_var))
+    return ll + ll0
+
+
+# --------------------------------------------------------------------------- block-diagonal path
+class Blocks:
+    """Frames grouped by style cell, padded to one block size (static NumPy bookkeeping).
+
+    With one-hot style vectors, prod_f (s_f^T s_f') is 1 inside a cell (same level of every
+    factor) and exactly 0 across cells, so the kernel matrix is block-diagonal and its log-density
+    is the sum over cells. Padding rows get unit variance and zero output, and their constant
+    is removed, so the sum is exactly the dense value.
+
+    Attributes:
+        idx: (n_blocks, B) row indices into the layer's rows (padding repeats row 0).
+        mask: (n_blocks, B) True for real rows.
+    """
+
+    def __init__(self, cell_of_row: np.ndarray):
+        cells = np.unique(cell_of_row)
+        groups = [np.flatnonzero(cell_of_row == c) for c in cells]
+        B = max(g.size for g in groups)
+        self.idx = np.zeros((len(groups), B), dtype=int)
+        self.mask = np.zeros((len(groups), B), dtype=bool)
+        for b, g in enumerate(groups):
+            self.idx[b, : g.size] = g
+            self.mask[b, : g.size] = True
+
+
+def cell_ids(onehots) -> np.ndarray:
+    """(M,) integer id of each row's combination of one-hot levels over the given factors."""
+    if not onehots:
+        return np.zeros(0, dtype=int)
+    codes = np.stack([np.argmax(h, 1) for h in onehots], axis=1)
+    _, ids = np.unique(codes, axis=0, return_inverse=True)
+    return ids.ravel()
+
+
+def blocked_gaussian_loglik(K_of_rows, Y, noise_var, blocks: Blocks, jitter=0.0):
+    """sum over blocks of log N(Y_b | 0, K_b + noise_var I), vectorised with vmap.
+
+    Args:
+        K_of_rows: function (B,) row indices -> (B, B) noise-free kernel of those rows.
+        Y: (M, D) outputs of all rows.
+        noise_var: scalar noise variance.
+        blocks: the grouping.
+    """
+    D = Y.shape[1]
+
+    def one(ix, m):
+        mm = m[:, None] & m[None, :]
+        K = jnp.where(mm, K_of_rows(ix), 0.0) + jnp.diag(jnp.where(m, noise_var, 1.0))
+        Yb = jnp.where(m[:, None], Y[ix], 0.0)
+        return gaussian_loglik(K, Yb, jitter) + 0.5 * jnp.sum(~m) * D * LOG_2PI
+
+    vals = jax.vmap(one)(jnp.asarray(blocks.idx), jnp.asarray(blocks.mask))
+    return jnp.sum(vals)
+
+
+def blocked_style_gplvm_loglik(I, Z, beta, blocks: Blocks, jitter=0.0):
+    """Interaction layer for one-hot styles: within a cell the style factor is exactly 1."""
+    return blocked_gaussian_loglik(lambda ix: kernels.rbf(I[ix], I[ix], beta[0], beta[1]),
+                                   Z, 1.0 / beta[2], blocks, jitter)
+
+
+def blocked_gpdm_loglik(I, alpha, index: DynamicsIndex, blocks: Blocks, jitter=0.0,
+                        prior_var=1.0):
+    """Dynamics layer for one-hot styles (blocks group the *output* rows by style cell)."""
+    lags, out = dynamics_io(I, index)
+    o = index.order
+    ones = jnp.ones((out.shape[0], 1))
+
+    def K_rows(ix):
+        la = [l[ix] for l in lags]
+        return kernels.dynamics_kernel(la, la, [ones[ix]], [ones[ix]], alpha)
+
+    ll = blocked_gaussian_loglik(K_rows, out, 1.0 / alpha[1 + 2 * o], blocks, jitter)
     first = I[index.first]
     ll0 = -0.5 * jnp.sum(first**2) / prior_var - 0.5 * first.size * (LOG_2PI + jnp.log(prior_var))
     return ll + ll0

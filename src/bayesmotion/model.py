@@ -202,15 +202,29 @@ class LogPosterior:
     """The joint log-posterior of eq. 12 as a pure function of the parameter dict.
 
     ``LogPosterior(spec, data)(params, jitter)`` -> scalar; -inf outside the support.
+    While a layer's style vectors are the fixed one-hot labels its kernel matrix is exactly
+    block-diagonal by style cell and is factorised block by block (``dense=True`` forces the
+    dense path; tests check both agree).
     The instance holds only static bookkeeping (indices, data), so it is safe to close over
     inside ``jit``.
     """
 
-    def __init__(self, spec: HGPDM, data: ModelData):
+    def __init__(self, spec: HGPDM, data: ModelData, dense: bool = False):
         self.spec = spec
+        self.dense = dense
         self.data = data
         self.index = layers.DynamicsIndex(data.lengths, spec.order)
         self.style_prior = StylePrior.around_labels(data.onehot, spec.priors.style_kappa)
+        tof = data.trial_of_frame
+        int_cells = layers.cell_ids([data.onehot[f][tof] for f in spec.interaction_factors])
+        dyn_cells = layers.cell_ids([data.onehot[f][tof][self.index.out]
+                                     for f in spec.dynamics_factors])
+        # Block-diagonal plans, used while the layer's style vectors are the fixed one-hot labels
+        self.int_blocks = layers.Blocks(int_cells) if int_cells.size else None
+        self.dyn_blocks = layers.Blocks(dyn_cells) if dyn_cells.size else None
+
+    def _fixed(self, params, factors) -> bool:
+        return all(STYLE_PREFIX + f not in params for f in factors)
 
     def frame_styles(self, params, factors):
         S = trial_styles(params, self.data)
@@ -219,17 +233,26 @@ class LogPosterior:
 
     def layer_terms(self, params: dict, jitter=0.0) -> dict[str, jnp.ndarray]:
         """Each layer's log-likelihood and the log-prior, separately."""
+        params = {k: jnp.asarray(v) for k, v in params.items()}
         h = constrained(params)
         X, I = params["X"], params["I"]
         A = X.shape[0]
         bottom = sum(layers.gplvm_loglik(X[a], jnp.asarray(self.data.Y[a]), h["gamma"], jitter)
                      for a in range(A))
         Z = jnp.concatenate([X[a] for a in range(A)], axis=1)
-        S_int = self.frame_styles(params, self.spec.interaction_factors)
-        inter = layers.style_gplvm_loglik(I, Z, S_int, h["beta"], jitter)
-        S_dyn = self.frame_styles(params, self.spec.dynamics_factors)
-        dyn = layers.gpdm_loglik(I, S_dyn, h["alpha"], self.index, jitter,
-                                 self.spec.priors.init_var)
+        fi, fd = self.spec.interaction_factors, self.spec.dynamics_factors
+        if self.dense or self.int_blocks is None or not self._fixed(params, fi):
+            S_int = self.frame_styles(params, fi)
+            inter = layers.style_gplvm_loglik(I, Z, S_int, h["beta"], jitter)
+        else:
+            inter = layers.blocked_style_gplvm_loglik(I, Z, h["beta"], self.int_blocks, jitter)
+        if self.dense or self.dyn_blocks is None or not self._fixed(params, fd):
+            S_dyn = self.frame_styles(params, fd)
+            dyn = layers.gpdm_loglik(I, S_dyn, h["alpha"], self.index, jitter,
+                                     self.spec.priors.init_var)
+        else:
+            dyn = layers.blocked_gpdm_loglik(I, h["alpha"], self.index, self.dyn_blocks, jitter,
+                                             self.spec.priors.init_var)
         prior = (log_prior_hyper(params, self.spec.priors, self.spec.order)
                  + log_prior_style(params, self.style_prior))
         return {"bottom": bottom, "interaction": inter, "dynamics": dyn, "prior": prior}

@@ -1,0 +1,165 @@
+"""The hierarchy: log-posterior assembly, MAP fit, jitter handling, model files."""
+
+import json
+import zipfile
+from importlib.resources import files
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.flatten_util import ravel_pytree
+
+import bayesmotion as bm
+from bayesmotion.errors import ModelFileError
+from bayesmotion.io import load
+from bayesmotion.model import HGPDM, LogPosterior
+from bayesmotion.optim import map_optimize
+
+
+def tiny_dataset(n_trials=4, frames=12, fps=15):
+    """Segments of the shipped real CMU handshake with two planted labels (test-sized)."""
+    root = files("bayesmotion") / "data" / "builtin"
+    a = bm.read_bvh(root / "18_01.bvh").select(slice(1, None)).resample(fps)
+    b = bm.read_bvh(root / "19_01.bvh").select(slice(1, None)).resample(fps)
+    trials = []
+    for k in range(n_trials):
+        sl = slice(k * 5, k * 5 + frames)
+        trials.append(bm.Trial((a.select(sl), b.select(sl)),
+                               {"emotion": ("happy", "sad")[k % 2], "couple": "c1"}, f"t{k}"))
+    return bm.MotionDataset(trials)
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    return HGPDM(latent_dim=3, interaction_dim=3).fit(tiny_dataset(), max_iter=60,
+                                                      progress=False)
+
+
+def test_log_posterior_is_sum_of_layers_and_blocked_equals_dense(fitted):
+    lp = fitted.log_posterior_fn
+    p = fitted.to_device()
+    terms = lp.layer_terms(p, 1e-8)
+    assert float(lp(p, 1e-8)) == pytest.approx(sum(float(v) for v in terms.values()), rel=1e-12)
+    dense = LogPosterior(fitted.spec, fitted.data, dense=True)
+    # at zero jitter (jitter is relative to the mean diagonal, which padding changes)
+    np.testing.assert_allclose(float(dense(p, 0.0)), float(lp(p, 0.0)), rtol=1e-9)
+    np.testing.assert_allclose(float(jax.jit(lp)(p, 1e-8)), float(lp(p, 1e-8)), rtol=1e-9)
+
+
+def test_log_posterior_gradient_matches_finite_differences(fitted):
+    """At the (well-conditioned) initial point, with free style vectors included."""
+    from bayesmotion.model import init_params
+    from bayesmotion.params import simplex_to_style
+
+    lp = fitted.log_posterior_fn
+    p0 = init_params(fitted.spec, fitted.data)
+    p0["style:emotion"] = np.asarray(simplex_to_style(np.array([[0.7, 0.3], [0.2, 0.8]] * 2)))
+    x0, unravel = ravel_pytree({k: jnp.asarray(v) for k, v in p0.items()})
+    f = jax.jit(lambda x: lp(unravel(x), 1e-8))
+    g = np.asarray(jax.grad(f)(x0))
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        v = rng.normal(size=x0.size)
+        v /= np.linalg.norm(v)
+        h = 1e-5
+        fd = (float(f(x0 + h * v)) - float(f(x0 - h * v))) / (2 * h)
+        assert fd == pytest.approx(g @ v, rel=1e-4, abs=1e-4)
+
+
+def test_fit_decreases_objective_and_records_diagnostics(fitted):
+    d = fitted.diagnostics
+    assert d["objective"] < d["initial_objective"]
+    trace = np.array(d["trace"])
+    assert np.all(np.diff(trace) <= 1e-8 * np.abs(trace[:-1]))  # L-BFGS accepts only descents
+    for key in ("iterations", "evaluations", "grad_norm", "message", "converged", "jitter"):
+        assert key in d
+    assert np.isfinite(fitted.log_posterior())
+
+
+def test_fit_is_deterministic_for_a_seed():
+    ds = tiny_dataset(n_trials=2)
+    spec = HGPDM(latent_dim=2, interaction_dim=2)
+    a = spec.fit(ds, max_iter=10, progress=False, seed=3)
+    b = spec.fit(ds, max_iter=10, progress=False, seed=3)
+    c = spec.fit(ds, max_iter=10, progress=False, seed=4)
+    np.testing.assert_array_equal(a.params["I"], b.params["I"])
+    assert not np.array_equal(a.params["I"], c.params["I"])
+
+
+def test_optimized_style_vectors_stay_on_the_simplex():
+    m = HGPDM(latent_dim=2, interaction_dim=2).fit(tiny_dataset(n_trials=4), max_iter=15,
+                                                   optimize_style=True, progress=False)
+    s = m.styles()["emotion"]
+    np.testing.assert_allclose(s.sum(1), 1.0, rtol=1e-12)
+    assert np.all(s > 0)
+    # each trial's style stays closest to its own label
+    assert list(np.argmax(s, 1)) == [0, 1, 0, 1]  # levels sorted: happy, sad
+
+
+def test_escalating_jitter_is_used_and_reported():
+    """A density that fails (-inf) below jitter 1e-4 still gets optimised, and it is reported."""
+    def logp(p, jitter):
+        val = -jnp.sum((p["x"] - 2.0) ** 2)
+        return jnp.where(jitter >= 1e-4, val, -jnp.inf)
+
+    params, diag = map_optimize(logp, {"x": np.zeros(3)}, progress=False)
+    np.testing.assert_allclose(params["x"], 2.0, atol=1e-5)
+    assert [e["jitter"] for e in diag["jitter_events"]] == [1e-6, 1e-4]
+    assert diag["jitter"] == 1e-4
+
+
+def test_save_load_round_trip_is_bit_exact(fitted, tmp_path):
+    path = tmp_path / "model.npz"
+    fitted.save(path)
+    back = load(path)
+    assert back.log_posterior() == fitted.log_posterior()
+    for k, v in fitted.params.items():
+        np.testing.assert_array_equal(back.params[k], v)
+    assert back.spec == fitted.spec
+    assert back.levels == {k: tuple(v) for k, v in fitted.levels.items()}
+    assert [t.labels for t in back.trials] == [t.labels for t in fitted.trials]
+    np.testing.assert_array_equal(back.codecs[1].scale, fitted.codecs[1].scale)
+
+
+def test_save_is_atomic_and_keeps_old_file_on_failure(fitted, tmp_path, monkeypatch):
+    path = tmp_path / "model.npz"
+    fitted.save(path)
+    before = path.read_bytes()
+
+    def boom(*a, **k):
+        raise OSError("disk full")
+
+    monkeypatch.setattr("os.replace", boom)
+    with pytest.raises(OSError):
+        fitted.save(path)
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["model.npz"]
+
+
+def test_corrupted_and_foreign_files_raise_model_file_error(fitted, tmp_path):
+    good = tmp_path / "good.npz"
+    fitted.save(good)
+    truncated = tmp_path / "truncated.npz"
+    truncated.write_bytes(good.read_bytes()[:500])
+    foreign = tmp_path / "foreign.npz"
+    np.savez(foreign, a=np.arange(3))
+    text = tmp_path / "text.npz"
+    text.write_text("hello")
+    wrong_meta = tmp_path / "meta.npz"
+    np.savez(wrong_meta, __meta__=np.frombuffer(json.dumps({"format": "x"}).encode(), np.uint8))
+    missing = tmp_path / "missing.npz"
+    with zipfile.ZipFile(good) as zin, zipfile.ZipFile(missing, "w") as zout:
+        for item in zin.infolist():
+            if not item.filename.startswith("param/I"):
+                zout.writestr(item, zin.read(item.filename))
+    for bad in (truncated, foreign, text, wrong_meta, missing, tmp_path / "absent.npz"):
+        with pytest.raises(ModelFileError):
+            load(bad)
+
+
+def test_pickled_object_arrays_are_refused(tmp_path):
+    path = tmp_path / "evil.npz"
+    np.savez(path, __meta__=np.array([{"format": "bayesmotion-hgpdm"}], dtype=object))
+    with pytest.raises(ModelFileError):
+        load(path)
