@@ -123,6 +123,29 @@ class FittedHGPDM:
 
         return replace(self, params={k: np.asarray(v) for k, v in params.items()})
 
+    # ------------------------------------------------------------------ generation
+    def generate(self, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,
+                 start=None, seed: int = 0, **styles):
+        """Generate motion top-down with predictive uncertainty.
+
+        Args:
+            emotion: a level name, a coordinate vector over the emotion levels (convex
+                combinations interpolate; anything off the simplex extrapolates and is flagged
+                in ``Rollout.extrapolated``), a (T, K) array, or a ``Transition``.
+            couple: likewise for the couple factor (default: the first couple).
+            n_frames: frames to generate, including the ``order`` start frames.
+            n_samples: stochastic rollouts drawn from the dynamics' predictive distribution.
+            start: training-trial index (default: the first trial with the requested labels),
+                ``"prior"`` (zero latent state), or an (order, Q_I) latent array.
+            seed: PRNG seed of the samples.
+            **styles: values for any other style factor of the model.
+        Returns:
+            a :class:`bayesmotion.generate.Rollout`.
+        """
+        from .generate import generate
+
+        return generate(self, emotion, couple, n_frames, n_samples, start, seed, **styles)
+
     # ------------------------------------------------------------------ files
     def save(self, path) -> None:
         """Write the model as .npz arrays + JSON metadata, atomically, without pickle."""

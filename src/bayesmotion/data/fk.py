@@ -8,7 +8,7 @@ if it has them, else its OFFSET (see :mod:`bayesmotion.data.skeleton`).
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import lru_cache, partial
 
 import jax
 import jax.numpy as jnp
@@ -45,22 +45,20 @@ def euler_to_matrix(angles_deg: jax.Array, order: str) -> jax.Array:
     return R
 
 
-def _fk(values: jax.Array, *, skeleton: Skeleton, with_end_sites: bool) -> jax.Array:
-    rot_idx, orders = skeleton.rotation_layout()
-    pos_idx = skeleton.position_layout()
-    offsets = jnp.asarray(skeleton.offsets, dtype=values.dtype)
+def _fk(values, offsets, end_offsets, *, layout, with_end_sites: bool):
+    parents, rot_idx, orders, pos_idx, end_joints = layout
     lead = values.shape[:-1]
     Rw, pw = [], []
-    for j, parent in enumerate(skeleton.parents):
+    for j, parent in enumerate(parents):
         n_rot = len(orders[j])
         if n_rot:
-            R = euler_to_matrix(values[..., rot_idx[j, :n_rot]], orders[j])
+            R = euler_to_matrix(values[..., list(rot_idx[j][:n_rot])], orders[j])
         else:
             R = jnp.broadcast_to(jnp.eye(3, dtype=values.dtype), lead + (3, 3))
-        t = jnp.broadcast_to(offsets[j], lead + (3,))
+        t = jnp.broadcast_to(offsets[j].astype(values.dtype), lead + (3,))
         for a in range(3):
-            if pos_idx[j, a] >= 0:
-                t = t.at[..., a].set(values[..., pos_idx[j, a]])
+            if pos_idx[j][a] >= 0:
+                t = t.at[..., a].set(values[..., pos_idx[j][a]])
         if parent < 0:
             Rw.append(R)
             pw.append(t)
@@ -68,32 +66,51 @@ def _fk(values: jax.Array, *, skeleton: Skeleton, with_end_sites: bool) -> jax.A
             Rw.append(Rw[parent] @ R)
             pw.append(pw[parent] + jnp.einsum("...ij,...j->...i", Rw[parent], t))
     if with_end_sites:
-        for j, off in sorted(skeleton.end_sites.items()):
-            pw.append(pw[j] + jnp.einsum("...ij,j->...i", Rw[j], jnp.asarray(off, values.dtype)))
+        for k, j in enumerate(end_joints):
+            off = end_offsets[k].astype(values.dtype)
+            pw.append(pw[j] + jnp.einsum("...ij,j->...i", Rw[j], off))
     return jnp.stack(pw, axis=-2)
 
 
+def layout_key(skeleton: Skeleton) -> tuple:
+    """Hashable description of everything FK compiles against (not the bone offsets)."""
+    rot_idx, orders = skeleton.rotation_layout()
+    return (skeleton.parents, tuple(map(tuple, rot_idx.tolist())), orders,
+            tuple(map(tuple, skeleton.position_layout().tolist())),
+            tuple(sorted(skeleton.end_sites)))
+
+
+def _end_offsets(skeleton: Skeleton) -> np.ndarray:
+    ends = sorted(skeleton.end_sites)
+    return np.array([skeleton.end_sites[j] for j in ends]).reshape(len(ends), 3)
+
+
 @lru_cache(maxsize=64)
-def _jitted_fk(skeleton: Skeleton, with_end_sites: bool):
-    return jax.jit(lambda v: _fk(v, skeleton=skeleton, with_end_sites=with_end_sites))
+def _jitted_fk(layout: tuple, with_end_sites: bool):
+    return jax.jit(partial(_fk, layout=layout, with_end_sites=with_end_sites))
 
 
 def forward_kinematics(skeleton: Skeleton, values, with_end_sites: bool = False) -> jax.Array:
     """World joint positions.
 
     Args:
-        skeleton: the joint tree (static: one compiled function per skeleton).
+        skeleton: the joint tree. One function is compiled per joint layout; bone offsets are
+            an argument, so skeletons that differ only in offsets share it.
         values: (..., C) channel values in BVH order (degrees, file length units).
         with_end_sites: append the End Site positions after the joints.
     Returns:
         (..., J, 3) world positions (``J + n_end_sites`` rows with end sites).
     """
-    return _jitted_fk(skeleton, bool(with_end_sites))(jnp.asarray(values))
+    f = _jitted_fk(layout_key(skeleton), bool(with_end_sites))
+    return f(jnp.asarray(values), jnp.asarray(skeleton.offsets), jnp.asarray(_end_offsets(skeleton)))
 
 
 def fk_function(skeleton: Skeleton, with_end_sites: bool = False):
-    """The traceable (un-jitted) FK ``values (..., C) -> (..., J, 3)`` for use inside jit."""
-    return lambda v: _fk(v, skeleton=skeleton, with_end_sites=with_end_sites)
+    """Traceable FK ``(values (..., C), offsets (J, 3)) -> (..., J, 3)`` for use inside jit."""
+    layout = layout_key(skeleton)
+    ends = jnp.asarray(_end_offsets(skeleton))
+    return lambda v, offsets: _fk(v, offsets, ends, layout=layout,
+                                  with_end_sites=with_end_sites)
 
 
 def numpy_positions(skeleton: Skeleton, values: np.ndarray, with_end_sites=False) -> np.ndarray:

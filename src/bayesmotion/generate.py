@@ -1,0 +1,353 @@
+"""Generation with predictive uncertainty (Taubert et al. eq. 13-16, plus sampling).
+
+The dynamics layer is rolled out under ``lax.scan`` from a start state: by mean prediction, or,
+for ``n_samples > 0``, by drawing every step from the GP predictive ``N(mean, var + 1/alpha_noise)``
+(``vmap`` over samples). Each step is drawn given the previous *values* only, not the GP's
+function values at earlier inputs (the usual sequential approximation, as in the enhanced-GPDM
+of Ko & Fox). Every latent trajectory is then mapped top-down by mean prediction through the
+interaction and bottom layers (batched over frames) and to joint positions by forward
+kinematics.
+
+Reported along the rollout:
+
+* ``*_var``: the one-step predictive variance of each layer along the mean rollout (latent I,
+  latent X, pose Y), carried to joint angles (times the codec scale squared) and joint positions
+  (first-order propagation through forward kinematics);
+* ``samples`` and ``sample_var``: the sampled rollouts and their spread in the same spaces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .data.fk import fk_function
+from .data.motion import Motion
+from .errors import BayesmotionError
+from .predict import (
+    Predictor,
+    condition,
+    noise_variances,
+    predict_bottom,
+    predict_dynamics,
+    predict_interaction,
+)
+
+
+class Transition(NamedTuple):
+    """A style that changes from ``source`` to ``target`` over frames [start, start + length).
+
+    ``source`` / ``target`` are level names or coordinate vectors. The blend weight follows a
+    smoothstep, as in the emotion transitions of Bhattacharya et al. (2021).
+    """
+
+    source: object
+    target: object
+    start: int
+    length: int
+
+
+def _coords(model, factor, value) -> np.ndarray:
+    K = len(model.levels[factor])
+    if isinstance(value, str):
+        return np.eye(K)[model.level_index(factor, value)]
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != (K,):
+        raise BayesmotionError(f"{factor} coordinates must have {K} entries "
+                               f"({', '.join(model.levels[factor])}), got shape {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise BayesmotionError(f"{factor} coordinates must be finite")
+    return v
+
+
+def resolve_style(model, factor: str, value, n_frames: int) -> np.ndarray:
+    """A style value -> (T, K) per-frame coordinates (label, vector, (T, K) array, Transition)."""
+    if factor not in model.levels:
+        raise BayesmotionError(f"model has no style factor {factor!r}")
+    K = len(model.levels[factor])
+    if isinstance(value, Transition):
+        a, b = _coords(model, factor, value.source), _coords(model, factor, value.target)
+        t = np.clip((np.arange(n_frames) - value.start) / max(value.length, 1), 0.0, 1.0)
+        w = t * t * (3 - 2 * t)
+        return (1 - w)[:, None] * a + w[:, None] * b
+    arr = np.asarray(value) if not isinstance(value, str) else None
+    if arr is not None and arr.ndim == 2:
+        if arr.shape != (n_frames, K):
+            raise BayesmotionError(f"time-varying {factor} must be ({n_frames}, {K}), "
+                                   f"got {arr.shape}")
+        return np.asarray(arr, dtype=np.float64)
+    return np.tile(_coords(model, factor, value), (n_frames, 1))
+
+
+def is_extrapolated(coords: np.ndarray) -> bool:
+    """True when any frame's coordinates leave the simplex (negative or not summing to 1)."""
+    return bool(np.any(coords < -1e-9) or np.any(np.abs(coords.sum(-1) - 1) > 1e-6))
+
+
+@dataclass(frozen=True, eq=False)
+class Rollout:
+    """Generated motion with its predictive uncertainty. Shapes: T frames, A actors, S samples.
+
+    Attributes:
+        fps: frame rate. styles: factor -> (T, K) coordinates used. extrapolated: any style
+        outside the simplex. start: description of the start state. n_observed: leading frames
+        copied from data (zero variance).
+        I, I_var: (T, Q_I), (T,) mean latent and one-step predictive variance (incl. noise).
+        X, X_var: (A, T, Q_X), (A, T). Y, Y_var: (A, T, D), (A, T).
+        angles, angles_var: (A, T, C) channel values (BVH order) and their variance.
+        positions, positions_var: (A, T, J, 3) joint positions and their variance.
+        samples: dict with I (S, T, Q_I), X, Y, angles (S, A, T, C), positions (S, A, T, J, 3),
+            or None. sample_var: the samples' spread in the same spaces.
+        skeletons: per actor, the skeleton used for decoding.
+    """
+
+    fps: float
+    styles: dict
+    extrapolated: bool
+    start: str
+    n_observed: int
+    I: np.ndarray
+    I_var: np.ndarray
+    X: np.ndarray
+    X_var: np.ndarray
+    Y: np.ndarray
+    Y_var: np.ndarray
+    angles: np.ndarray
+    angles_var: np.ndarray
+    positions: np.ndarray
+    positions_var: np.ndarray
+    skeletons: tuple
+    samples: dict | None = None
+    sample_var: dict | None = field(default=None)
+
+    @property
+    def n_frames(self) -> int:
+        return self.I.shape[0]
+
+    def to_motion(self, sample: int | None = None) -> tuple[Motion, ...]:
+        """Per-actor Motions of the mean rollout (``sample=None``) or of sample ``sample``."""
+        if sample is None:
+            ang = self.angles
+        else:
+            if self.samples is None or not 0 <= sample < self.samples["angles"].shape[0]:
+                raise BayesmotionError(f"rollout has no sample {sample}")
+            ang = self.samples["angles"][sample]
+        return tuple(Motion(sk, ang[a], self.fps, f"actor{a}")
+                     for a, sk in enumerate(self.skeletons))
+
+    def interval(self, q: float = 0.9, space: str = "positions"):
+        """Central ``q`` Gaussian interval (lower, upper) of the mean rollout in a space."""
+        from scipy.stats import norm
+
+        mean, var = getattr(self, space), getattr(self, f"{space}_var")
+        z = norm.ppf(0.5 + q / 2)
+        sd = np.sqrt(var)
+        return mean - z * sd, mean + z * sd
+
+    def write_bvh(self, folder, prefix: str = "rollout", sample: int | None = None) -> list:
+        """One BVH file per actor; returns the paths."""
+        from pathlib import Path
+
+        from .data.bvh import write_bvh
+
+        tag = "mean" if sample is None else f"sample{sample}"
+        return [write_bvh(m, Path(folder) / f"{prefix}_{tag}_actor{a}.bvh")
+                for a, m in enumerate(self.to_motion(sample))]
+
+
+# --------------------------------------------------------------------------- the jitted core
+@partial(jax.jit, static_argnames=("n_steps", "sample"))
+def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool):
+    """Roll the dynamics forward n_steps from I0 (o, Q) with per-step styles (n_steps, K_f).
+
+    Returns (I (n_steps, Q), one-step variance (n_steps,) including the dynamics noise).
+    """
+    noise = noise_variances(P)["I"]
+    keys = jax.random.split(key, n_steps)
+
+    def step(lags, inp):
+        s, k = inp
+        mean, var = predict_dynamics(P, lags[:, None, :], [x[None] for x in s])
+        v = var[0] + noise
+        eps = jax.random.normal(k, mean[0].shape) if sample else jnp.zeros_like(mean[0])
+        new = mean[0] + jnp.sqrt(v) * eps
+        return jnp.concatenate([new[None], lags[:-1]], axis=0), (new, v)
+
+    _, (I, v) = jax.lax.scan(step, I0[::-1], (tuple(styles), keys))
+    return I, v
+
+
+@partial(jax.jit, static_argnames=("n_actors",))
+def map_down(P: Predictor, I, int_styles, n_actors: int):
+    """Mean prediction top-down for a whole latent trajectory I (T, Q_I)."""
+    noise = noise_variances(P)
+    Xm, Xv = predict_interaction(P, I, list(int_styles))
+    q = Xm.shape[1] // n_actors
+    out = []
+    for a in range(n_actors):
+        Xa = Xm[:, a * q:(a + 1) * q]
+        Ym, Yv = predict_bottom(P, a, Xa)
+        out.append((Xa, Ym, Yv + noise["Y"]))
+    return out, Xv + noise["X"]
+
+
+# --------------------------------------------------------------------------- decoding to motion
+_JAC_CACHE: dict = {}
+
+
+def _fk_and_jacobian(skeleton):
+    """Jitted (values (T, C)) -> positions (T, J, 3), d positions / d values (T, J, 3, C)."""
+    from .data.fk import layout_key
+
+    key = layout_key(skeleton)
+    if key not in _JAC_CACHE:
+        f = fk_function(skeleton)
+        _JAC_CACHE[key] = (jax.jit(f), jax.jit(jax.vmap(jax.jacfwd(f), in_axes=(0, None))))
+    fk, jac = _JAC_CACHE[key]
+    off = jnp.asarray(skeleton.offsets)
+    return (lambda v: fk(v, off)), (lambda v: jac(v, off))
+
+
+def _anchor(model, codec, trial: int, actor: int, n_frames: int):
+    anchor = np.asarray(model.trials[trial].anchors[actor])
+    if codec.root_mode == "partner":
+        return np.broadcast_to(anchor.mean(0), (n_frames, anchor.shape[1]))
+    return anchor
+
+
+def decode_actor(model, actor: int, Y, Y_var, trial: int):
+    """Y (T, D) and isotropic variance (T,) -> channels (T, C), variance (T, C), skeleton."""
+    codec = model.codecs[actor]
+    sk = model.skeleton(actor, trial)
+    T = Y.shape[0]
+    motion = codec.decode(np.asarray(Y), _anchor(model, codec, trial, actor, T), sk, model.fps)
+    var = np.zeros_like(motion.values)
+    var[:, codec.keep] = np.asarray(Y_var)[:, None] * codec.scale**2
+    if codec.root_mode == "velocity":
+        from .data.representation import _root_horizontal_columns
+
+        h = _root_horizontal_columns(sk)
+        var[:, h] = np.concatenate([np.zeros((1, h.size)),
+                                    np.cumsum(var[1:, h], 0) / model.fps**2])
+    return motion.values, var, sk
+
+
+def _positions_with_var(sk, values, var):
+    fk, jac = _fk_and_jacobian(sk)
+    J = np.asarray(jac(jnp.asarray(values)))
+    return np.asarray(fk(jnp.asarray(values))), np.einsum("tjkc,tc->tjk", J**2, var)
+
+
+# --------------------------------------------------------------------------- the public driver
+def _start_trial(model, styles, start) -> int:
+    if isinstance(start, int | np.integer):
+        if not 0 <= start < len(model.trials):
+            raise BayesmotionError(f"start trial {start} out of range (0-{len(model.trials) - 1})")
+        return int(start)
+    target = {f: np.argmax(c[0]) for f, c in styles.items()}
+    for r, rec in enumerate(model.trials):
+        if all(model.levels[f].index(rec.labels[f]) == k for f, k in target.items()):
+            return r
+    return 0
+
+
+def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,
+             start=None, seed: int = 0, predictor: Predictor | None = None,
+             **styles) -> Rollout:
+    """Generate a rollout; see :meth:`FittedHGPDM.generate`."""
+    if n_frames <= model.spec.order:
+        raise BayesmotionError(f"n_frames must exceed the dynamics order ({model.spec.order})")
+    if n_samples < 0:
+        raise BayesmotionError("n_samples must be >= 0")
+    values = dict(styles)
+    if "emotion" in model.levels:
+        values["emotion"] = emotion
+    if "couple" in model.levels:
+        values["couple"] = couple if couple is not None else model.levels["couple"][0]
+    coords = {f: resolve_style(model, f, values.get(f, model.levels[f][0]), n_frames)
+              for f in model.spec.factors}
+    P = condition(model) if predictor is None else predictor
+    o = model.spec.order
+    if isinstance(start, str) and start == "prior":
+        r, I0, desc = _start_trial(model, coords, None), np.zeros((o, model.spec.interaction_dim)), "prior mean"
+    elif start is None or isinstance(start, int | np.integer):
+        r = _start_trial(model, coords, start)
+        I0 = model.latents(r)["I"][:o]
+        desc = f"first {o} frames of training trial {r} ({model.trials[r].name})"
+    else:
+        I0 = np.asarray(start, dtype=np.float64)
+        if I0.shape != (o, model.spec.interaction_dim):
+            raise BayesmotionError(f"start must be a trial index, 'prior' or an array of shape "
+                                   f"{(o, model.spec.interaction_dim)}, got {I0.shape}")
+        r, desc = _start_trial(model, coords, None), "given latent state"
+    dyn_s = tuple(jnp.asarray(coords[f][o:]) for f in model.spec.dynamics_factors)
+    int_s = tuple(jnp.asarray(coords[f]) for f in model.spec.interaction_factors)
+    key = jax.random.PRNGKey(seed)
+    I_gen, I_var = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n_frames - o, False)
+    I = np.concatenate([I0, np.asarray(I_gen)])
+    I_var = np.concatenate([np.zeros(o), np.asarray(I_var)])
+    mean = _map_and_decode(model, P, jnp.asarray(I), int_s, r)
+    samples = sample_var = None
+    if n_samples:
+        keys = jax.random.split(key, n_samples + 1)[1:]
+        roll = jax.vmap(lambda k: dynamics_rollout(P, jnp.asarray(I0), dyn_s, k, n_frames - o,
+                                                   True)[0])
+        I_s = np.concatenate([np.broadcast_to(I0, (n_samples, o, I0.shape[1])),
+                              np.asarray(roll(keys))], axis=1)
+        samples = {"I": I_s, **_map_and_decode_samples(model, P, jnp.asarray(I_s), int_s, r)}
+        sample_var = {k: v.var(0) for k, v in samples.items()}
+    return Rollout(fps=model.fps, styles=coords,
+                   extrapolated=any(is_extrapolated(c) for c in coords.values()), start=desc,
+                   n_observed=o, I=I, I_var=I_var, skeletons=mean.pop("skeletons"),
+                   samples=samples, sample_var=sample_var, **mean)
+
+
+def _map_and_decode_samples(model, P, I_s, int_s, trial):
+    """Samples (S, T, Q_I) -> X, Y, angles, positions, each with a leading sample axis."""
+    A = model.n_actors
+    outs, _ = jax.vmap(lambda I: map_down(P, I, int_s, A))(I_s)
+    X = np.stack([np.asarray(o[0]) for o in outs], axis=1)  # (S, A, T, Q)
+    Y = np.stack([np.asarray(o[1]) for o in outs], axis=1)
+    angles, positions = [], []
+    for a in range(A):
+        codec, sk = model.codecs[a], model.skeleton(a, trial)
+        anchor = _anchor(model, codec, trial, a, Y.shape[2])
+        v = np.stack([codec.decode(y, anchor, sk, model.fps).values for y in Y[:, a]])
+        angles.append(v)
+        positions.append(np.asarray(_fk_and_jacobian(sk)[0](jnp.asarray(v))))
+    return {"X": X, "Y": Y, "angles": np.stack(angles, 1), "positions": np.stack(positions, 1)}
+
+
+def _map_and_decode(model, P, I, int_s, trial, with_var=True):
+    A = model.n_actors
+    layers_out, X_var = map_down(P, I, int_s, A)
+    X = np.stack([np.asarray(l[0]) for l in layers_out])
+    Y = np.stack([np.asarray(l[1]) for l in layers_out])
+    Y_var = np.stack([np.asarray(l[2]) for l in layers_out])
+    ang, ang_var, pos, pos_var, sks = [], [], [], [], []
+    for a in range(A):
+        v, var, sk = decode_actor(model, a, Y[a], Y_var[a], trial)
+        if with_var:
+            p, pv = _positions_with_var(sk, v, var)
+        else:
+            p, pv = np.asarray(_fk_and_jacobian(sk)[0](jnp.asarray(v))), None
+        ang.append(v), ang_var.append(var), pos.append(p), pos_var.append(pv), sks.append(sk)
+    if not with_var:
+        return {"X": X, "Y": Y, "angles": np.stack(ang), "positions": np.stack(pos)}
+    # the first o frames are observed: no predictive variance there
+    o = model.spec.order
+    Xv = np.broadcast_to(np.asarray(X_var), (A, X.shape[1])).copy()
+    for arr in (Xv, Y_var):
+        arr[:, :o] = 0.0
+    ang_var = np.stack(ang_var)
+    ang_var[:, :o] = 0.0
+    pos_var = np.stack(pos_var)
+    pos_var[:, :o] = 0.0
+    return {"X": X, "X_var": Xv, "Y": Y, "Y_var": Y_var, "angles": np.stack(ang),
+            "angles_var": ang_var, "positions": np.stack(pos), "positions_var": pos_var,
+            "skeletons": tuple(sks)}

@@ -1,0 +1,140 @@
+"""GP predictive distributions of the fitted hierarchy (eq. 13-16).
+
+``condition(model)`` precomputes, for every layer, the Cholesky factor of the training kernel
+matrix and the weights ``A = K^-1 outputs``; the result is a pytree, so a posterior can stack
+one per draw and ``vmap`` over them. For a new input ``u`` with style ``s``:
+
+    mean(u) = k(u, U)^T A,      var(u) = k(u, u) - |L^-1 k(U, u)|^2      (per output dimension)
+
+(the noise variance is added by callers that predict noisy outputs).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.linalg import cho_solve, solve_triangular
+
+from . import kernels, layers
+from .model import constrained, trial_styles
+
+
+class LayerFit(NamedTuple):
+    """One conditioned GP layer. inputs: layer-specific; L: (M, M); A: (M, D)."""
+
+    L: jnp.ndarray
+    A: jnp.ndarray
+
+
+class Predictor(NamedTuple):
+    """All conditioned layers of a fitted model (a pytree of arrays).
+
+    Attributes:
+        dyn_lags: (o, M, Q_I) training inputs of the dynamics GP; dyn_style: per dynamics factor
+            (M, K_f) styles of its outputs; dyn: LayerFit; alpha: (2 + 2o,).
+        I: (N, Q_I) interaction inputs; int_style: per interaction factor (N, K_f); inter:
+            LayerFit; beta: (3,).
+        X: (A, N, Q_X) bottom inputs; bottom: LayerFit with L (A, N, N), A (A, N, D) -- equal D
+            is not required: weights are stored per actor in ``bottom_A`` instead.
+        gamma: (3,).
+    """
+
+    dyn_lags: jnp.ndarray
+    dyn_style: tuple
+    dyn: LayerFit
+    alpha: jnp.ndarray
+    I: jnp.ndarray
+    int_style: tuple
+    inter: LayerFit
+    beta: jnp.ndarray
+    X: jnp.ndarray
+    bottom_L: jnp.ndarray
+    bottom_A: tuple
+    gamma: jnp.ndarray
+
+
+def _fit_layer(K, outputs, jitter):
+    L, _ = layers.safe_cholesky(K, jitter)
+    return LayerFit(L, cho_solve((L, True), outputs))
+
+
+def condition(model, params: dict | None = None, jitter: float | None = None) -> Predictor:
+    """Condition every layer on the training data at ``params`` (default: the MAP)."""
+    params = {k: jnp.asarray(v) for k, v in (model.params if params is None else params).items()}
+    jitter = model.diagnostics.get("jitter", 1e-8) if jitter is None else jitter
+    h = constrained(params)
+    spec, data = model.spec, model.data
+    index = layers.DynamicsIndex(data.lengths, spec.order)
+    S = trial_styles(params, data)
+    tof = data.trial_of_frame
+    X, I = params["X"], params["I"]
+    o = spec.order
+    # dynamics
+    lags, out = layers.dynamics_io(I, index)
+    dyn_style = tuple(S[f][tof][index.out] for f in spec.dynamics_factors)
+    Kd = kernels.dynamics_kernel(lags, lags, dyn_style, dyn_style, h["alpha"])
+    dyn = _fit_layer(Kd + jnp.eye(out.shape[0]) / h["alpha"][1 + 2 * o], out, jitter)
+    # interaction
+    int_style = tuple(S[f][tof] for f in spec.interaction_factors)
+    Z = jnp.concatenate(list(X), axis=1)
+    Ki = kernels.interaction_kernel(I, I, int_style, int_style, h["beta"])
+    inter = _fit_layer(Ki + jnp.eye(I.shape[0]) / h["beta"][2], Z, jitter)
+    # bottom, per actor
+    Ls, As = [], []
+    for a in range(X.shape[0]):
+        Kb = kernels.bottom_kernel(X[a], X[a], h["gamma"]) + jnp.eye(X.shape[1]) / h["gamma"][2]
+        f = _fit_layer(Kb, jnp.asarray(data.Y[a]), jitter)
+        Ls.append(f.L)
+        As.append(f.A)
+    return Predictor(jnp.stack(lags), dyn_style, dyn, h["alpha"], I, int_style, inter, h["beta"],
+                     X, jnp.stack(Ls), tuple(As), h["gamma"])
+
+
+def _mean_var(kx, kxx, fit: LayerFit):
+    """kx: (M, B) cross-covariances, kxx: (B,) prior variances -> mean (B, D), var (B,)."""
+    mean = kx.T @ fit.A
+    v = solve_triangular(fit.L, kx, lower=True)
+    return mean, jnp.maximum(kxx - jnp.sum(v * v, 0), 0.0)
+
+
+def predict_dynamics(P: Predictor, lags_new, style_new):
+    """One step of the dynamics GP.
+
+    Args:
+        lags_new: (o, B, Q_I) lagged inputs I_{t-1}, ..., I_{t-o}.
+        style_new: per dynamics factor, (B, K_f).
+    Returns:
+        mean (B, Q_I), latent-function variance (B,) (add 1/alpha_noise for a noisy step).
+    """
+    kx = kernels.dynamics_kernel(list(P.dyn_lags), list(lags_new), list(P.dyn_style),
+                                 list(style_new), P.alpha)
+    kxx = kernels.dynamics_diag(list(lags_new), list(style_new), P.alpha)
+    return _mean_var(kx, kxx, P.dyn)
+
+
+def predict_interaction(P: Predictor, I_new, style_new):
+    """I_new: (B, Q_I) -> mean of [X_1 .. X_A] (B, A*Q_X), variance (B,)."""
+    kx = kernels.interaction_kernel(P.I, I_new, list(P.int_style), list(style_new), P.beta)
+    style_diag = jnp.ones(I_new.shape[0])
+    for s in style_new:
+        style_diag = style_diag * jnp.sum(s * s, -1)
+    return _mean_var(kx, style_diag * P.beta[0], P.inter)
+
+
+def predict_bottom(P: Predictor, a: int, X_new):
+    """X_new: (B, Q_X) latents of actor a -> mean Y (B, D_a), variance (B,)."""
+    kx = kernels.bottom_kernel(P.X[a], X_new, P.gamma)
+    fit = LayerFit(P.bottom_L[a], P.bottom_A[a])
+    return _mean_var(kx, jnp.full(X_new.shape[0], P.gamma[0]), fit)
+
+
+def noise_variances(P: Predictor) -> dict[str, jnp.ndarray]:
+    o = P.dyn_lags.shape[0]
+    return {"I": 1.0 / P.alpha[1 + 2 * o], "X": 1.0 / P.beta[2], "Y": 1.0 / P.gamma[2]}
+
+
+def as_numpy(tree):
+    return jax.tree_util.tree_map(np.asarray, tree)
