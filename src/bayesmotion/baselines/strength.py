@@ -37,6 +37,7 @@ import numpy as np
 from ..data.motion import Motion
 from ..errors import BayesmotionError
 from ..features import JointMap, body_frame_pose
+from ..features.joint_map import Names
 from ..features.movement import leg_length
 from ..features.pose import semantic_positions
 
@@ -93,8 +94,8 @@ def resample_rows(X: np.ndarray, n: int) -> np.ndarray:
     return np.stack([np.interp(s, np.arange(len(X)), col) for col in X.T], axis=1)
 
 
-def keyframe_features_from_positions(positions: np.ndarray, names, fps: float, n_keys: int = 8,
-                                     tol: float | None = None,
+def keyframe_features_from_positions(positions: np.ndarray, names: Names, fps: float,
+                                     n_keys: int = 8, tol: float | None = None,
                                      joint_map: JointMap | None = None) -> np.ndarray:
     """(n_keys · 72,) keyframe poses and joint speeds (module docstring, steps 1-2).
 

@@ -31,6 +31,8 @@ from dataclasses import dataclass, fields
 from ..data.skeleton import Skeleton
 from ..errors import BayesmotionError
 
+Names = Skeleton | Sequence[str]  # a skeleton, or its (J,) joint names
+
 SEMANTIC_JOINTS = (
     "root", "spine", "neck", "head",
     "l_shoulder", "r_shoulder", "l_elbow", "r_elbow", "l_hand", "r_hand",
@@ -102,13 +104,13 @@ BANDAI_MAP = JointMap(**_sided(
 SHIPPED_MAPS = {"cmu": CMU_MAP, "bandai": BANDAI_MAP}
 
 
-def _names(skeleton_or_names: Skeleton | Sequence[str]) -> tuple[str, ...]:
+def _names(skeleton_or_names: Names) -> tuple[str, ...]:
     if isinstance(skeleton_or_names, Skeleton):
         return skeleton_or_names.names
     return tuple(skeleton_or_names)
 
 
-def joint_map_for(skeleton_or_names: Skeleton | Sequence[str]) -> JointMap:
+def joint_map_for(skeleton_or_names: Names) -> JointMap:
     """The first shipped map whose joints all exist in the skeleton.
 
     Raises:
@@ -126,7 +128,7 @@ def joint_map_for(skeleton_or_names: Skeleton | Sequence[str]) -> JointMap:
         + "); pass joint_map=JointMap(root=..., ...) naming its joints")
 
 
-def resolve_indices(skeleton_or_names: Skeleton | Sequence[str],
+def resolve_indices(skeleton_or_names: Names,
                     joint_map: JointMap | None = None) -> dict[str, int]:
     """Semantic name -> joint index, auto-detecting the map when ``joint_map`` is None."""
     names = _names(skeleton_or_names)

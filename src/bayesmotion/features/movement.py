@@ -30,7 +30,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..data.motion import Motion
-from .joint_map import JointMap
+from .joint_map import JointMap, Names
 from .pose import distance, semantic_positions
 
 
@@ -55,7 +55,8 @@ def heading(p: dict[str, np.ndarray]) -> np.ndarray:
     return np.unwrap(np.arctan2(-across[..., 1], across[..., 0]))
 
 
-def body_frame_pose(positions: np.ndarray, names, joint_map: JointMap | None = None) -> np.ndarray:
+def body_frame_pose(positions: np.ndarray, names: Names,
+                    joint_map: JointMap | None = None) -> np.ndarray:
     """(T, 18, 3) semantic joints relative to the root, turned to face +Z, in leg lengths.
 
     Invariant to translation, uniform scale and rotation about the vertical.
@@ -126,7 +127,7 @@ def movement_features(motion: Motion, joint_map: JointMap | None = None,
 
 
 def movement_features_from_positions(
-        positions: np.ndarray, names, fps: float, joint_map: JointMap | None = None, *,
+        positions: np.ndarray, names: Names, fps: float, joint_map: JointMap | None = None, *,
         window: float = 1.0, min_speed: float = 0.25, contact_height: float = 0.1,
         contact_speed: float = 0.6) -> dict[str, np.ndarray]:
     """Movement features (module table).

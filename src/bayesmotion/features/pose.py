@@ -38,15 +38,10 @@ A ratio whose denominator is exactly zero (coincident joints, a flat triangle) i
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 
 from ..data.motion import Motion
-from ..data.skeleton import Skeleton
-from .joint_map import JointMap, resolve_indices
-
-UP = np.array([0.0, 1.0, 0.0])  # both shipped data sets are Y-up
+from .joint_map import JointMap, Names, resolve_indices
 
 _ANGLES = (
     ("angle_spine_shoulders", "r_shoulder", "spine", "l_shoulder"),
@@ -100,7 +95,7 @@ def ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
     return np.divide(num, den, out=out, where=den != 0)
 
 
-def semantic_positions(positions: np.ndarray, skeleton_or_names: Skeleton | Sequence[str],
+def semantic_positions(positions: np.ndarray, skeleton_or_names: Names,
                        joint_map: JointMap | None = None) -> dict[str, np.ndarray]:
     """Semantic name -> (..., 3) positions, from ``positions: (..., J, 3)``."""
     idx = resolve_indices(skeleton_or_names, joint_map)
@@ -108,7 +103,7 @@ def semantic_positions(positions: np.ndarray, skeleton_or_names: Skeleton | Sequ
     return {k: P[..., j, :] for k, j in idx.items()}
 
 
-def pose_features(positions: np.ndarray, skeleton_or_names: Skeleton | Sequence[str],
+def pose_features(positions: np.ndarray, skeleton_or_names: Names,
                   joint_map: JointMap | None = None) -> np.ndarray:
     """The 18 affective pose features (module table) of every frame.
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..data.motion import Motion
 from ..errors import BayesmotionError
-from .joint_map import JointMap
+from .joint_map import JointMap, Names
 from .movement import movement_features_from_positions
 from .pose import POSE_FEATURE_NAMES, pose_features
 
@@ -59,7 +59,7 @@ def clip_features(motion: Motion, joint_map: JointMap | None = None) -> np.ndarr
                                         joint_map, name=motion.name)
 
 
-def clip_features_from_positions(positions: np.ndarray, names, fps: float,
+def clip_features_from_positions(positions: np.ndarray, names: Names, fps: float,
                                  joint_map: JointMap | None = None, name: str = "") -> np.ndarray:
     """(45,) :func:`clip_features` of (T, J, 3) positions of the skeleton/joint ``names``."""
     pose = _pose_summary(pose_features(positions, names, joint_map), name)
