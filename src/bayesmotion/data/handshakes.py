@@ -35,14 +35,18 @@ from .motion import Motion, MotionDataset, Trial
 
 EMOTIONS = ("neutral", "happy", "angry", "sad")
 HAND = "RightHand"
-WINDOW = (0.75, 1.05)  # seconds before / after the hand contact, on the recording's clock
+# Seconds before / after the hand contact at speed 1. After the shake subject 18 turns through a
+# heading of -90 deg, the gimbal lock of the root's ZYX angles: Z and X jump by ~70 deg per frame
+# at 2.14-2.23 s (frames 257-268). The window keeps even the fastest trial (speed <= 1.28) before
+# that, and after the recording's start (contact at 1.025 s).
+WINDOW = (0.8, 0.85)
 COUPLES = {"c1": (0, 1), "c2": (1, 0)}  # couple -> (actor 0, actor 1) as (subject 18, 19) index
 COUPLE_STYLES = {
     "c1": EmotionStyle(),
     "c2": EmotionStyle(speed=0.95, amplitude={"arms": 1.1, "torso": 0.9},
                        posture={"Spine1": (2, 0, 0), "Neck": (3, 0, 0)}, timing={"torso": 0.04}),
 }
-SPEED_JITTER, AMPLITUDE_JITTER = 0.03, 0.05  # uniform relative jitter per repetition
+SPEED_JITTER, AMPLITUDE_JITTER = 0.025, 0.05  # uniform relative jitter per repetition
 NOISE_DEG, NOISE_HZ, NOISE_TERMS = 0.8, (0.3, 1.2), 3  # smooth angle noise: random sinusoids
 
 
@@ -218,7 +222,7 @@ def load_handshakes(seed: int = 0, fps: float = 20.0, n_repetitions: int = 3,
     * couples: ``"c1"`` = (subject 18, subject 19) as recorded; ``"c2"`` = the roles swapped
       (subject 19 is actor 0) with its own style (slower 0.95x, larger arm and smaller torso
       amplitude, a slightly flexed spine and neck, the torso lagging the arms by 40 ms);
-    * repetitions: per-repetition jitter of speed (+-3 %) and torso/arm amplitude (+-5 %), and
+    * repetitions: per-repetition jitter of speed (+-2.5 %) and torso/arm amplitude (+-5 %), and
       smooth noise on every non-root joint angle (three random sinusoids of 0.3-1.2 Hz, about
       0.8 deg in all), deterministic from ``(seed, couple, emotion, repetition)``;
     * time: both actors share one clock ``tau(t) = t_c + speed (t - t_c')`` anchored at the hand
@@ -227,7 +231,7 @@ def load_handshakes(seed: int = 0, fps: float = 20.0, n_repetitions: int = 3,
       ``peak_shift`` is not used: it would move the contact);
     * amplitude is scaled about each subject's mean posture over the neutral shake window;
     * reach compensation: posture and amplitude changes move the hands (a larger arm amplitude
-      reaches further: without compensation the hands come up to 37 % closer than recorded).
+      reaches further: without compensation the hands come up to about 30 % closer than recorded).
       Afterwards each actor's root is translated horizontally, by one constant vector for the
       whole trial: first so that its right hand at the contact frame is above its recorded
       contact position, then both apart (or together) along the line between the recorded
@@ -239,9 +243,11 @@ def load_handshakes(seed: int = 0, fps: float = 20.0, n_repetitions: int = 3,
         seed: non-negative integer; the same seed gives bit-identical values.
         fps: frame rate of the trials (120 = the recording's; 20 is enough for the model).
         n_repetitions: repetitions per emotion and couple.
-        window: ``"shake"``: 0.75 s before to 1.05 s after contact, the same number of frames in
-            every trial (37 at 20 fps, 217 at 120 fps); ``"full"``: the whole recording at the
-            trial's speed, so the frame count varies with the emotion.
+        window: ``"shake"``: 0.8 s before to 0.85 s after contact (times ``speed`` on the
+            recording's clock), the same number of frames in every trial (34 at 20 fps, 199 at
+            120 fps); it ends before subject 18 turns away, whose root Euler angles pass through
+            gimbal lock (jumps of ~70 deg in Hips Z and X). ``"full"``: the whole recording at
+            the trial's speed, so the frame count varies with the emotion, turn included.
     Returns:
         a :class:`MotionDataset` of ``4 x 2 x n_repetitions`` two-actor trials with labels
         ``emotion`` (levels neutral, happy, angry, sad), ``couple`` (c1, c2) and ``repetition``
