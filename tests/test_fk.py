@@ -18,11 +18,11 @@ def reference_fk(skeleton, values):
         for j, p in enumerate(skeleton.parents):
             chans = skeleton.channels[j]
             vals = values[t, starts[j]:starts[j + 1]]
-            rot = [(c[0], v) for c, v in zip(chans, vals) if c.endswith("rotation")]
+            rot = [(c[0], v) for c, v in zip(chans, vals, strict=True) if c.endswith("rotation")]
             R = (Rotation.from_euler("".join(a for a, _ in rot), [v for _, v in rot],
                                      degrees=True).as_matrix() if rot else np.eye(3))
             off = skeleton.offsets[j].copy()
-            for c, v in zip(chans, vals):
+            for c, v in zip(chans, vals, strict=True):
                 if c.endswith("position"):
                     off["XYZ".index(c[0])] = v
             if p < 0:
@@ -78,3 +78,29 @@ def test_fk_batched_over_leading_axes_and_end_sites():
     np.testing.assert_allclose(batched.reshape(8, -1, 3), flat, atol=1e-12)
     np.testing.assert_allclose(batched[..., :-1, :].reshape(8, -1, 3),
                                reference_fk(sk, v.reshape(8, -1)), atol=1e-10)
+
+
+def test_numpy_and_jax_fk_agree_with_end_sites_and_leading_axes():
+    from bayesmotion.data.fk import numpy_positions
+
+    rng = np.random.default_rng(5)
+    sk = random_skeleton(rng)
+    sk = bm.Skeleton(sk.names, sk.parents, sk.offsets, sk.channels, {4: [0.1, 0.2, 0.3]})
+    v = rng.uniform(-180, 180, size=(3, 5, sk.n_channels))
+    np.testing.assert_allclose(numpy_positions(sk, v, True),
+                               np.asarray(forward_kinematics(sk, v, True)), atol=1e-11)
+
+
+def test_jax_fk_pads_frames_to_buckets_without_changing_results():
+    from bayesmotion.data.fk import _jitted_fk, layout_key
+
+    rng = np.random.default_rng(6)
+    sk = random_skeleton(rng)
+    v = rng.uniform(-90, 90, size=(13, sk.n_channels))
+    full = np.asarray(forward_kinematics(sk, v))
+    f = _jitted_fk(layout_key(sk), False)
+    before = f._cache_size()
+    for n in (9, 10, 11, 12, 13):  # one bucket (16 frames): no new compilation
+        np.testing.assert_allclose(np.asarray(forward_kinematics(sk, v[:n])), full[:n],
+                                   atol=1e-12)
+    assert f._cache_size() - before <= 1

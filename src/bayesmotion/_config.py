@@ -1,9 +1,16 @@
 """Numerical configuration applied when bayesmotion is imported.
 
-GP marginal likelihoods over hundreds of frames need float64 (Cholesky of kernel matrices with
-condition numbers ~1e8), so bayesmotion switches JAX to 64-bit, as numpyro's ``enable_x64`` does.
-Code that wants float32 elsewhere can switch it back after import; bayesmotion's own functions
-cast their inputs to float64 explicitly where it matters.
+float64: GP marginal likelihoods over hundreds of frames need it (Cholesky of kernel matrices
+with condition numbers ~1e8), so bayesmotion switches JAX to 64-bit, as numpyro's ``enable_x64``
+does. Code that wants float32 elsewhere can switch it back after import; bayesmotion's own
+functions cast their inputs to float64 where it matters.
+
+JAX version: jaxlib 0.10.x runs *batched* CPU LAPACK calls (vmapped Cholesky and triangular
+solves, used here over walkers and style blocks) through ``ParallelBatchMap``, which can deadlock
+XLA's intra-op thread pool: every worker waits in ``BlockingCounter::Wait`` and the computation
+never returns. We reproduced it here (a gdb stack of the hung fit shows
+``jax::TriMatrixEquationSolver`` under ``ParallelBatchMap``), so pyproject.toml excludes 0.10.*;
+jaxlib 0.9.x lacks that path.
 """
 
 import jax

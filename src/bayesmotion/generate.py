@@ -97,8 +97,12 @@ class Rollout:
         fps: frame rate. styles: factor -> (T, K) coordinates used. extrapolated: any style
         outside the simplex. start: description of the start state. n_observed: leading frames
         copied from data (zero variance).
-        I, I_var: (T, Q_I), (T,) mean latent and one-step predictive variance (incl. noise).
-        X, X_var: (A, T, Q_X), (A, T). Y, Y_var: (A, T, D), (A, T).
+        I, I_var: (T, Q_I) mean latent and its one-step predictive variance (incl. noise;
+            the same for every dimension of one GP layer).
+        variance_parts: posterior-predictive rollouts only: space -> {"within", "between"}
+            (GP variance given a draw, and variance of the mean across draws).
+        draws: posterior-predictive rollouts only: indices of the draws used.
+        X, X_var: (A, T, Q_X). Y, Y_var: (A, T, D).
         angles, angles_var: (A, T, C) channel values (BVH order) and their variance.
         positions, positions_var: (A, T, J, 3) joint positions and their variance.
         samples: dict with I (S, T, Q_I), X, Y, angles (S, A, T, C), positions (S, A, T, J, 3),
@@ -124,6 +128,8 @@ class Rollout:
     skeletons: tuple
     samples: dict | None = None
     sample_var: dict | None = field(default=None)
+    variance_parts: dict | None = None
+    draws: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -274,7 +280,8 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
     P = condition(model) if predictor is None else predictor
     o = model.spec.order
     if isinstance(start, str) and start == "prior":
-        r, I0, desc = _start_trial(model, coords, None), np.zeros((o, model.spec.interaction_dim)), "prior mean"
+        r, desc = _start_trial(model, coords, None), "prior mean"
+        I0 = np.zeros((o, model.spec.interaction_dim))
     elif start is None or isinstance(start, int | np.integer):
         r = _start_trial(model, coords, start)
         I0 = model.latents(r)["I"][:o]
@@ -290,7 +297,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
     key = jax.random.PRNGKey(seed)
     I_gen, I_var = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n_frames - o, False)
     I = np.concatenate([I0, np.asarray(I_gen)])
-    I_var = np.concatenate([np.zeros(o), np.asarray(I_var)])
+    I_var = np.concatenate([np.zeros(o), np.asarray(I_var)])[:, None] * np.ones_like(I)
     mean = _map_and_decode(model, P, jnp.asarray(I), int_s, r)
     samples = sample_var = None
     if n_samples:
@@ -348,6 +355,7 @@ def _map_and_decode(model, P, I, int_s, trial, with_var=True):
     ang_var[:, :o] = 0.0
     pos_var = np.stack(pos_var)
     pos_var[:, :o] = 0.0
-    return {"X": X, "X_var": Xv, "Y": Y, "Y_var": Y_var, "angles": np.stack(ang),
+    return {"X": X, "X_var": Xv[..., None] * np.ones_like(X), "Y": Y,
+            "Y_var": Y_var[..., None] * np.ones_like(Y), "angles": np.stack(ang),
             "angles_var": ang_var, "positions": np.stack(pos), "positions_var": pos_var,
             "skeletons": tuple(sks)}

@@ -64,7 +64,7 @@ def style_gplvm_loglik(I, Z, S, beta, jitter=0.0):
     return gaussian_loglik(K, Z, jitter)
 
 
-def dynamics_io(I: jnp.ndarray, index: "DynamicsIndex"):
+def dynamics_io(I: jnp.ndarray, index: DynamicsIndex):
     """Inputs (o lags) and outputs of the dynamics GP, gathered by precomputed indices."""
     lags = [I[index.lag[l]] for l in range(index.order)]
     return lags, I[index.out]
@@ -88,7 +88,8 @@ class DynamicsIndex:
         self.order = order
         self.lengths = np.asarray(lengths)
         self.starts = starts
-        self.out = np.concatenate([np.arange(s + order, s + n) for s, n in zip(starts, lengths)])
+        self.out = np.concatenate([np.arange(s + order, s + n)
+                                   for s, n in zip(starts, lengths, strict=True)])
         self.lag = [self.out - l for l in range(1, order + 1)]
         self.first = np.concatenate([np.arange(s, s + order) for s in starts])
         self.trial_of_frame = np.repeat(np.arange(len(lengths)), lengths)

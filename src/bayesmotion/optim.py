@@ -16,7 +16,8 @@ JITTER_LADDER = (1e-8, 1e-6, 1e-4, 1e-2)  # relative to the mean diagonal of eac
 
 
 def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: float = 1e-5,
-                 ftol: float = 1e-10, progress: bool = True, desc: str = "MAP") -> tuple[dict, dict]:
+                 ftol: float = 1e-10, progress: bool = True,
+                 desc: str = "MAP") -> tuple[dict, dict]:
     """Maximise ``logp(params, jitter)`` over a parameter dict.
 
     The dict is flattened once with ``ravel_pytree``; scipy's L-BFGS-B gets a jitted

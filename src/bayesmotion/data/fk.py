@@ -90,19 +90,33 @@ def _jitted_fk(layout: tuple, with_end_sites: bool):
     return jax.jit(partial(_fk, layout=layout, with_end_sites=with_end_sites))
 
 
+def _bucket(n: int) -> int:
+    """Frame counts are padded up to 8 * 2^k so clips of many lengths share a few compilations."""
+    b = 8
+    while b < n:
+        b *= 2
+    return b
+
+
 def forward_kinematics(skeleton: Skeleton, values, with_end_sites: bool = False) -> jax.Array:
-    """World joint positions.
+    """World joint positions (JAX).
 
     Args:
-        skeleton: the joint tree. One function is compiled per joint layout; bone offsets are
-            an argument, so skeletons that differ only in offsets share it.
+        skeleton: the joint tree. One function is compiled per joint layout and padded frame
+            bucket; bone offsets are an argument, so skeletons differing only in offsets share it.
         values: (..., C) channel values in BVH order (degrees, file length units).
         with_end_sites: append the End Site positions after the joints.
     Returns:
         (..., J, 3) world positions (``J + n_end_sites`` rows with end sites).
     """
     f = _jitted_fk(layout_key(skeleton), bool(with_end_sites))
-    return f(jnp.asarray(values), jnp.asarray(skeleton.offsets), jnp.asarray(_end_offsets(skeleton)))
+    values = jnp.asarray(values)
+    lead = values.shape[:-1]
+    flat = values.reshape(-1, values.shape[-1])
+    n = flat.shape[0]
+    flat = jnp.pad(flat, ((0, _bucket(n) - n), (0, 0)))
+    out = f(flat, jnp.asarray(skeleton.offsets), jnp.asarray(_end_offsets(skeleton)))[:n]
+    return out.reshape(*lead, *out.shape[-2:])
 
 
 def fk_function(skeleton: Skeleton, with_end_sites: bool = False):
@@ -113,6 +127,40 @@ def fk_function(skeleton: Skeleton, with_end_sites: bool = False):
                                   with_end_sites=with_end_sites)
 
 
+def _np_axis_rotation(axis: str, rad: np.ndarray) -> np.ndarray:
+    c, s = np.cos(rad), np.sin(rad)
+    o, z = np.ones_like(rad), np.zeros_like(rad)
+    rows = {"X": ((o, z, z), (z, c, -s), (z, s, c)), "Y": ((c, z, s), (z, o, z), (-s, z, c)),
+            "Z": ((c, -s, z), (s, c, z), (z, z, o))}[axis]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
 def numpy_positions(skeleton: Skeleton, values: np.ndarray, with_end_sites=False) -> np.ndarray:
-    """FK evaluated and returned as a NumPy float64 array."""
-    return np.asarray(forward_kinematics(skeleton, np.asarray(values, np.float64), with_end_sites))
+    """FK in NumPy (float64, vectorised over frames): no compilation, for data handling.
+
+    The same equations as the JAX version (tests check they agree); use the JAX one inside
+    jitted or differentiated code.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    lead = values.shape[:-1]
+    v = values.reshape(-1, values.shape[-1])
+    parents, rot_idx, orders, pos_idx, end_joints = layout_key(skeleton)
+    Rw, pw = [], []
+    for j, parent in enumerate(parents):
+        R = np.broadcast_to(np.eye(3), (v.shape[0], 3, 3))
+        for k, axis in enumerate(orders[j]):
+            R = R @ _np_axis_rotation(axis, np.deg2rad(v[:, rot_idx[j][k]]))
+        t = np.tile(skeleton.offsets[j], (v.shape[0], 1))
+        for a in range(3):
+            if pos_idx[j][a] >= 0:
+                t[:, a] = v[:, pos_idx[j][a]]
+        if parent < 0:
+            Rw.append(R)
+            pw.append(t)
+        else:
+            Rw.append(Rw[parent] @ R)
+            pw.append(pw[parent] + np.einsum("nij,nj->ni", Rw[parent], t))
+    if with_end_sites:
+        for j in end_joints:
+            pw.append(pw[j] + Rw[j] @ skeleton.end_sites[j])
+    return np.stack(pw, axis=-2).reshape(*lead, -1, 3)

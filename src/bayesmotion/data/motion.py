@@ -46,7 +46,8 @@ class Motion:
             raise BayesmotionError(f"Motion {self.name!r} has zero frames")
         if not np.all(np.isfinite(v)):
             raise BayesmotionError(f"Motion {self.name!r} has NaN or infinite channel values")
-        if not (np.isfinite(self.fps) and self.fps > 0):
+        if not isinstance(self.fps, int | float | np.number) or not (
+                np.isfinite(self.fps) and self.fps > 0):
             raise BayesmotionError(f"Motion {self.name!r}: fps must be positive, got {self.fps}")
         object.__setattr__(self, "values", v)
         object.__setattr__(self, "fps", float(self.fps))

@@ -118,7 +118,8 @@ class PoseCodec:
         if not motions:
             raise BayesmotionError("PoseCodec.fit needs at least one motion")
         if root_mode not in ("velocity", "partner", "absolute"):
-            raise BayesmotionError(f"root_mode must be velocity/partner/absolute, got {root_mode!r}")
+            raise BayesmotionError(
+                f"root_mode must be velocity/partner/absolute, got {root_mode!r}")
         if root_mode == "partner" and (partners is None or len(partners) != len(motions)):
             raise BayesmotionError("root_mode='partner' needs one partner motion per motion")
         if scaling not in ("type", "channel"):

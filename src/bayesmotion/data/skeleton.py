@@ -42,13 +42,17 @@ class Skeleton:
     end_sites: dict[int, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self):
-        offsets = np.array(self.offsets, dtype=np.float64).reshape(-1, 3)
+        try:
+            offsets = np.array(self.offsets, dtype=np.float64).reshape(-1, 3)
+            ends = {int(k): np.array(v, dtype=np.float64).reshape(3)
+                    for k, v in self.end_sites.items()}
+        except (TypeError, ValueError) as e:
+            raise BayesmotionError(f"Skeleton offsets must be (J, 3) numbers: {e}") from None
         offsets.setflags(write=False)
         object.__setattr__(self, "offsets", offsets)
         object.__setattr__(self, "names", tuple(self.names))
         object.__setattr__(self, "parents", tuple(int(p) for p in self.parents))
         object.__setattr__(self, "channels", tuple(tuple(c) for c in self.channels))
-        ends = {int(k): np.array(v, dtype=np.float64).reshape(3) for k, v in self.end_sites.items()}
         object.__setattr__(self, "end_sites", ends)
         self._validate()
 

@@ -1,0 +1,329 @@
+"""The Bayesian layer: MCMC over hyperparameters and training style vectors.
+
+Sampled: ``theta = (log gamma, log beta, log alpha, u_f for each style factor f)``, where
+``u_f: (R, K_f - 1)`` maps to each training trial's style vector on the simplex by stick-breaking.
+Held at their MAP values: the latents X and I. The target density, in unconstrained space, is
+
+    log p(theta | Y, X, I) = sum_a log N(Y_a | 0, K_Y(X_a; gamma))
+                             + log N([X_1 X_2] | 0, K_X(I, S; beta))
+                             + log N(I_out | 0, K_I(I_in, S; alpha)) + log N(I_first | 0, v0)
+                             + sum log Normal(log theta_h | log m_h, sigma)      (hyperparameters)
+                             + sum_r log Dirichlet(s_r | 1 + kappa onehot(label_r))
+                             + sum_r log |det d s_r / d u_r|                      (stick-breaking)
+                             + const,
+
+i.e. :class:`bayesmotion.model.LogPosterior` with the latents fixed. emcee receives it jitted
+and ``vmap``-ped over walkers (``vectorize=True``); NUTS (numpyro) gets the same potential.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.flatten_util import ravel_pytree
+
+from .errors import BayesmotionError
+from .optim import map_optimize
+from .params import STYLE_PREFIX, simplex_to_style, style_to_simplex
+
+SAMPLED_HYPER = ("log_gamma", "log_beta", "log_alpha")
+
+
+class ChainTooShortWarning(UserWarning):
+    """The chain is shorter than 50 integrated autocorrelation times (emcee's rule)."""
+
+
+def sampled_start(model) -> dict:
+    """Initial sampled parameters: MAP hyperparameters, style vectors from the model (or the
+    Dirichlet prior mean around each label when the MAP kept them one-hot)."""
+    p = {k: np.asarray(model.params[k]) for k in SAMPLED_HYPER}
+    conc = model.log_posterior_fn.style_prior.concentration
+    for f in model.spec.factors:
+        key = STYLE_PREFIX + f
+        if key in model.params:
+            p[key] = np.asarray(model.params[key])
+        else:
+            p[key] = np.asarray(simplex_to_style(conc[f] / conc[f].sum(1, keepdims=True)))
+    return p
+
+
+class Target:
+    """The sampled log-density at one flat-vector boundary.
+
+    ``Target(model)`` exposes ``x0`` (flat start), ``names`` (one per coordinate), ``unravel``,
+    ``logp(x)`` (jitted), ``logp_batch(xs)`` (jitted vmap over walkers) and ``full(x)`` (the
+    complete parameter dict with the fixed latents).
+    """
+
+    def __init__(self, model, jitter: float | None = None):
+        self.model = model
+        self.jitter = model.diagnostics.get("jitter", 1e-8) if jitter is None else jitter
+        start = sampled_start(model)
+        x0, self.unravel = ravel_pytree({k: jnp.asarray(v) for k, v in start.items()})
+        self.x0 = np.asarray(x0)
+        self.fixed = {"X": jnp.asarray(model.params["X"]), "I": jnp.asarray(model.params["I"])}
+        self.names = _flat_names(start)
+        lp = model.log_posterior_fn
+        jitter = self.jitter
+
+        def logp(x):
+            return lp({**self.fixed, **self.unravel(x)}, jitter)
+
+        self._logp = logp
+        self.logp = jax.jit(logp)
+        self.logp_batch = jax.jit(jax.vmap(logp))
+
+    @property
+    def ndim(self) -> int:
+        return self.x0.size
+
+    def full(self, x) -> dict:
+        return {**{k: np.asarray(v) for k, v in self.fixed.items()},
+                **{k: np.asarray(v) for k, v in self.unravel(jnp.asarray(x)).items()}}
+
+    def conditional_map(self, max_iter=500, progress=False):
+        """Maximise the sampled density with the latents fixed (the walkers' centre)."""
+        start = {k: np.asarray(v) for k, v in self.unravel(jnp.asarray(self.x0)).items()}
+        params, diag = map_optimize(lambda p, j: self.model.log_posterior_fn(
+            {**self.fixed, **p}, j), start, max_iter=max_iter, progress=progress,
+            desc="conditional MAP")
+        x, _ = ravel_pytree({k: jnp.asarray(v) for k, v in params.items()})
+        return np.asarray(x), diag
+
+
+def _flat_names(params: dict) -> list[str]:
+    names = []
+    for k in sorted(params):  # ravel_pytree orders dict keys by sorted order
+        v = np.asarray(params[k])
+        names += [f"{k}[{', '.join(map(str, i))}]" for i in np.ndindex(v.shape)]
+    return names
+
+
+@dataclass(eq=False)
+class Posterior:
+    """Posterior draws of (gamma, beta, alpha, training style vectors) given the MAP latents.
+
+    Attributes:
+        model: the FittedHGPDM.
+        target: the sampled density.
+        chains: (n_chains, n_draws, ndim) unconstrained draws after burn-in and thinning.
+        log_prob: (n_chains, n_draws).
+        acceptance: (n_chains,) acceptance fraction (emcee) or mean acceptance prob (NUTS).
+        method: "emcee" or "nuts".
+        info: tau, burn, thin, seconds, n_steps, warnings.
+    """
+
+    model: object
+    target: Target
+    chains: np.ndarray
+    log_prob: np.ndarray
+    acceptance: np.ndarray
+    method: str
+    info: dict = field(default_factory=dict)
+    _idata: object = None
+    _predictors: dict = field(default_factory=dict)
+
+    @property
+    def n_draws(self) -> int:
+        return self.chains.shape[0] * self.chains.shape[1]
+
+    def flat(self) -> np.ndarray:
+        """(n_chains * n_draws, ndim) unconstrained draws."""
+        return self.chains.reshape(-1, self.chains.shape[-1])
+
+    def constrained(self) -> dict[str, np.ndarray]:
+        """name -> (n_chains, n_draws, ...) gamma, beta, alpha and style_<factor>."""
+        C, D, _ = self.chains.shape
+        vmapped = jax.jit(jax.vmap(lambda x: _constrain(self.target.unravel(x))))
+        out = vmapped(jnp.asarray(self.flat()))
+        return {k: np.asarray(v).reshape(C, D, *v.shape[1:]) for k, v in out.items()}
+
+    def params(self, i: int) -> dict:
+        """Full parameter dict (with the MAP latents) of flat draw ``i``."""
+        return self.target.full(self.flat()[i])
+
+    @property
+    def idata(self):
+        if self._idata is None:
+            from .diagnostics import to_inference_data
+
+            self._idata = to_inference_data(self)
+        return self._idata
+
+    def summary(self, **kwargs):
+        """arviz summary (mean, sd, HDI, MCSE, bulk/tail ESS, R-hat) of constrained values."""
+        import arviz as az
+
+        return az.summary(self.idata, **kwargs)
+
+    def plot_trace(self, var_names=None, **kwargs):
+        import arviz as az
+
+        return az.plot_trace(self.idata, var_names=var_names, **kwargs)
+
+    def plot_pair(self, var_names=("gamma", "beta", "alpha"), **kwargs):
+        import arviz as az
+
+        return az.plot_pair(self.idata, var_names=list(var_names), **kwargs)
+
+    def to_netcdf(self, path) -> str:
+        from .diagnostics import save_netcdf
+
+        return save_netcdf(self.idata, path)
+
+    def predictor(self, i: int):
+        """The model conditioned on draw i (cached)."""
+        from .predict import condition
+
+        if i not in self._predictors:
+            self._predictors[i] = condition(self.model, self.params(i), self.target.jitter)
+        return self._predictors[i]
+
+    def generate(self, emotion="neutral", couple=None, n_frames=100, n_samples=0, start=None,
+                 seed=0, n_draws: int = 16, **styles):
+        """Posterior-predictive generation; see :func:`bayesmotion.ppc.generate_posterior`."""
+        from .ppc import generate_posterior
+
+        return generate_posterior(self, emotion, couple, n_frames, n_samples, start, seed,
+                                  n_draws, **styles)
+
+
+def _constrain(p: dict) -> dict:
+    out = {k[4:]: jnp.exp(v) for k, v in p.items() if k.startswith("log_")}
+    for k, v in p.items():
+        if k.startswith(STYLE_PREFIX):
+            out["style_" + k[len(STYLE_PREFIX):]] = style_to_simplex(v)
+    return out
+
+
+# --------------------------------------------------------------------------- samplers
+def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
+                     burn: int | None = None, thin: int | None = None, seed: int = 0,
+                     backend=None, progress: bool = True, method: str = "emcee",
+                     n_chains: int = 2, ball: float = 1e-3, moves=None) -> Posterior:
+    """Sample the posterior over hyperparameters and training style vectors.
+
+    Args:
+        fitted: a FittedHGPDM.
+        n_walkers: emcee walkers (default ``2 * ndim + 2``, even).
+        n_steps: emcee steps per walker (NUTS: samples per chain after as many warm-up steps).
+        burn, thin: discarded leading steps and thinning; by default chosen from the integrated
+            autocorrelation time tau (burn = 2 max tau, thin = max(1, min tau / 2)).
+        seed: seeds the walker ball, the moves and NUTS.
+        backend: path of an emcee HDF5 file. An existing file with the same dimensions is resumed
+            from its last step until it holds ``n_steps`` steps (nothing already saved is lost).
+        progress: progress bars.
+        method: "emcee" or "nuts".
+        n_chains: NUTS chains.
+        ball: radius of the Gaussian ball (unconstrained units) around the conditional MAP.
+        moves: emcee moves (default: 80% DEMove + 20% DESnookerMove, better than the stretch
+            move in tens of dimensions).
+
+    Returns:
+        a Posterior. A ``ChainTooShortWarning`` is issued when the chain is shorter than 50
+        autocorrelation times.
+    """
+    target = Target(fitted)
+    centre, cdiag = target.conditional_map(progress=False)
+    if method == "emcee":
+        post = _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend,
+                          progress, ball, moves)
+    elif method == "nuts":
+        post = _run_nuts(target, centre, n_steps, burn, thin, seed, progress, n_chains)
+    else:
+        raise BayesmotionError(f"method must be 'emcee' or 'nuts', got {method!r}")
+    post.info["conditional_map"] = {k: cdiag[k] for k in ("objective", "iterations", "converged")}
+    return post
+
+
+def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, progress, ball,
+               moves):
+    import emcee
+
+    ndim = target.ndim
+    W = n_walkers or 2 * ndim + 2
+    W += W % 2
+    if W < 2 * ndim:
+        raise BayesmotionError(f"emcee needs at least 2 * ndim = {2 * ndim} walkers, got {W}")
+    rng = np.random.default_rng(seed)
+    p0 = centre + ball * rng.standard_normal((W, ndim))
+
+    def log_prob(xs):
+        return np.asarray(target.logp_batch(jnp.asarray(xs)), dtype=np.float64)
+
+    be = None
+    start, todo = p0, n_steps
+    if backend is not None:
+        be = emcee.backends.HDFBackend(str(backend))
+        if be.initialized and be.iteration > 0:
+            shape = be.shape
+            if shape != (W, ndim):
+                raise BayesmotionError(f"backend {backend} holds a run of shape {shape}, this "
+                                       f"run needs {(W, ndim)}; use another file")
+            start, todo = None, max(0, n_steps - be.iteration)
+        else:
+            be.reset(W, ndim)
+    if moves is None:
+        moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+    sampler = emcee.EnsembleSampler(W, ndim, log_prob, vectorize=True, backend=be, moves=moves)
+    t0 = time.perf_counter()
+    if todo:
+        if start is None:
+            sampler.run_mcmc(None, todo, progress=progress)
+        else:  # seeded: emcee keeps its generator state in the State (and the backend)
+            state = emcee.State(start, random_state=np.random.RandomState(seed).get_state())
+            sampler.run_mcmc(state, todo, progress=progress)
+    seconds = time.perf_counter() - t0
+    chain = sampler.get_chain()  # (steps, W, ndim)
+    lp = sampler.get_log_prob()
+    tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
+    info = _burn_thin(tau, chain.shape[0], burn, thin)
+    sel = slice(info["burn"], None, info["thin"])
+    return Posterior(target.model, target, np.swapaxes(chain[sel], 0, 1),
+                     np.swapaxes(lp[sel], 0, 1), np.asarray(sampler.acceptance_fraction),
+                     "emcee", {**info, "tau": tau, "n_walkers": W, "n_steps": chain.shape[0],
+                               "seconds": seconds})
+
+
+def _burn_thin(tau, n_steps, burn, thin):
+    info = {}
+    tmax = float(np.nanmax(tau)) if np.all(np.isfinite(tau)) else float("inf")
+    if n_steps < 50 * tmax:
+        msg = (f"chain of {n_steps} steps is shorter than 50 autocorrelation times "
+               f"(max tau ~ {tmax:.0f}): the estimates are unreliable; run longer")
+        warnings.warn(msg, ChainTooShortWarning, stacklevel=3)
+        info["warning"] = msg
+    if burn is None:
+        burn = int(min(2 * tmax, n_steps // 2)) if np.isfinite(tmax) else n_steps // 2
+    if thin is None:
+        thin = max(1, int(0.5 * np.nanmin(tau))) if np.all(np.isfinite(tau)) else 1
+    if burn >= n_steps:
+        raise BayesmotionError(f"burn ({burn}) must be smaller than the {n_steps} steps")
+    info.update(burn=int(burn), thin=int(thin))
+    return info
+
+
+def _run_nuts(target, centre, n_steps, burn, thin, seed, progress, n_chains):
+    from numpyro.infer import MCMC, NUTS
+
+    warm = n_steps if burn is None else burn
+    kernel = NUTS(potential_fn=lambda x: -target._logp(x))
+    mcmc = MCMC(kernel, num_warmup=warm, num_samples=n_steps, num_chains=n_chains,
+                thinning=thin or 1, progress_bar=progress, chain_method="sequential")
+    rng = np.random.default_rng(seed)
+    init = jnp.asarray(centre + 1e-3 * rng.standard_normal((n_chains, centre.size)))
+    t0 = time.perf_counter()
+    mcmc.run(jax.random.PRNGKey(seed), init_params=init, extra_fields=("accept_prob",
+                                                                        "potential_energy"))
+    seconds = time.perf_counter() - t0
+    x = np.asarray(mcmc.get_samples(group_by_chain=True))
+    ex = mcmc.get_extra_fields(group_by_chain=True)
+    return Posterior(target.model, target, x, -np.asarray(ex["potential_energy"]),
+                     np.asarray(ex["accept_prob"]).mean(1), "nuts",
+                     {"burn": warm, "thin": thin or 1, "seconds": seconds, "n_steps": n_steps,
+                      "n_chains": n_chains})
