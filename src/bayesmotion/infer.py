@@ -1,0 +1,353 @@
+"""Emotion-style inference from observed motion: ``infer_emotion(model, clip)``.
+
+1. The clip is read (Trial, Motions, BVH paths, or model-space arrays), matched to the model's
+   skeleton by joint names, resampled to the model's frame rate and encoded.
+2. Projection: the latents X*, I* and the clip's style vectors are found jointly by MAP
+   (L-BFGS) of the clip's predictive log-density (bayesmotion.infer_density) with the model
+   fixed, starting from the latents of the nearest training frames and the prior-mean style.
+   Latent uncertainty: a diagonal Laplace approximation (Hutchinson estimate of diag H).
+3. Style posterior: emcee samples the clip's emotion coordinates (and its couple style when not
+   given) on the simplex, with the latents held at their MAP -- i.e. the conditional posterior
+   p(s* | Y*, X*, I*) proportional to p(s*) p(X* | I*, s*) p(I* | s*) (interaction and dynamics
+   predictive likelihoods). With a Posterior as ``model`` this is repeated for several posterior
+   draws of the hyperparameters and the samples are pooled (a mixture over draws).
+
+Arrays are padded to frame buckets so clips of many lengths share compiled functions.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.optimize
+
+from .clip import clip_poses
+from .errors import BayesmotionError
+from .infer_density import clip_log_density
+from .params import simplex_to_style, style_to_simplex
+from .predict import condition
+
+_STATIC = ("int_factors", "dyn_factors", "init_var")
+
+
+def _bucket(n: int) -> int:
+    b = 16
+    while b < n:
+        b *= 2
+    return b
+
+
+@partial(jax.jit, static_argnames=_STATIC)
+def _neg_value_and_grad(params, P, Ys, mask, fixed, conc, int_factors, dyn_factors, init_var):
+    f = lambda p: -clip_log_density(P, p, Ys, mask, fixed, conc, int_factors, dyn_factors,
+                                    init_var)
+    return jax.value_and_grad(f)(params)
+
+
+@partial(jax.jit, static_argnames=_STATIC)
+def _latent_diag_hessian(params, probes, P, Ys, mask, fixed, conc, int_factors, dyn_factors,
+                         init_var):
+    """Hutchinson estimate of diag(H) of -log p over the latents X, I."""
+    lat = {"X": params["X"], "I": params["I"]}
+    rest = {k: v for k, v in params.items() if k not in lat}
+    f = lambda l: -clip_log_density(P, {**rest, **l}, Ys, mask, fixed, conc, int_factors,
+                                    dyn_factors, init_var)
+    grad = jax.grad(f)
+
+    def one(v):
+        hv = jax.jvp(grad, (lat,), (v,))[1]
+        return jax.tree_util.tree_map(lambda a, b: a * b, v, hv)
+
+    return jax.tree_util.tree_map(lambda x: jnp.mean(x, 0), jax.vmap(one)(probes))
+
+
+@partial(jax.jit, static_argnames=_STATIC + ("keys",))
+def _style_logp_batch(flat, latents, P, Ys, mask, fixed, conc, int_factors, dyn_factors,
+                      init_var, keys):
+    def one(x):
+        params = dict(latents)
+        start = 0
+        for k, n in keys:
+            params[k] = x[start:start + n]
+            start += n
+        return clip_log_density(P, params, Ys, mask, fixed, conc, int_factors, dyn_factors,
+                                init_var)
+
+    return jax.vmap(one)(flat)
+
+
+@dataclass(eq=False)
+class EmotionPosterior:
+    """Posterior over a clip's emotion coordinates (and couple style when it was inferred).
+
+    Attributes:
+        levels: emotion level names (coordinate order).
+        samples: (n_chains, n_draws, K) emotion coordinates on the simplex.
+        couple_levels / couple_samples: the same for the couple factor, or None.
+        latents: X (A, T, Q_X), I (T, Q_I) at the MAP, with X_sd, I_sd (diagonal Laplace).
+        log_prob: (n_chains, n_draws). info: n_frames, seconds, acceptance, tau, map objective.
+    """
+
+    levels: tuple
+    samples: np.ndarray
+    latents: dict
+    log_prob: np.ndarray
+    couple_levels: tuple | None = None
+    couple_samples: np.ndarray | None = None
+    info: dict = field(default_factory=dict)
+    _idata: object = None
+
+    def _flat(self):
+        return self.samples.reshape(-1, self.samples.shape[-1])
+
+    @property
+    def mean(self) -> np.ndarray:
+        """(K,) posterior mean coordinates."""
+        return self._flat().mean(0)
+
+    def interval(self, q: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
+        """Equal-tailed central ``q`` credible interval of each coordinate: (lower, upper)."""
+        lo, hi = np.quantile(self._flat(), [0.5 - q / 2, 0.5 + q / 2], axis=0)
+        return lo, hi
+
+    @property
+    def probabilities(self) -> np.ndarray:
+        """(K,) posterior probability that each category is the largest coordinate."""
+        k = np.argmax(self._flat(), 1)
+        return np.bincount(k, minlength=len(self.levels)) / k.size
+
+    @property
+    def label(self) -> str:
+        return self.levels[int(np.argmax(self.probabilities))]
+
+    @property
+    def entropy(self) -> float:
+        """Entropy (nats) of ``probabilities``: 0 when certain, log K when uninformed."""
+        p = self.probabilities
+        p = p[p > 0]
+        return float(-np.sum(p * np.log(p)))
+
+    @property
+    def idata(self):
+        import arviz as az
+
+        if self._idata is None:
+            post = {"emotion": self.samples}
+            coords = {"emotion_level": list(self.levels)}
+            dims = {"emotion": ["emotion_level"]}
+            if self.couple_samples is not None:
+                post["couple"] = self.couple_samples
+                coords["couple_level"] = list(self.couple_levels)
+                dims["couple"] = ["couple_level"]
+            self._idata = az.from_dict(posterior=post, sample_stats={"lp": self.log_prob},
+                                       coords=coords, dims=dims)
+        return self._idata
+
+    def __str__(self) -> str:
+        p = self.probabilities
+        lo, hi = self.interval(0.9)
+        coords = ", ".join(f"{l}={m:.2f} [{a:.2f}, {b:.2f}]"
+                           for l, m, a, b in zip(self.levels, self.mean, lo, hi, strict=True))
+        return (f"{self.label} (P={p.max():.2f}; {self.info.get('n_frames', '?')} frames); "
+                f"mean {coords}")
+
+    __repr__ = __str__
+
+
+def _init_latents(model, Ys, B):
+    """Latents of the nearest training frame (in pose space) for every clip frame."""
+    train = np.concatenate([np.asarray(Y) for Y in model.data.Y], axis=1)
+    clip = np.concatenate(Ys, axis=1)
+    d = (np.sum(clip**2, 1)[:, None] + np.sum(train**2, 1)[None] - 2 * clip @ train.T)
+    nearest = np.argmin(d, 1)
+    T = clip.shape[0]
+    X = np.asarray(model.params["X"])[:, nearest]
+    I = np.asarray(model.params["I"])[nearest]
+    pad = B - T
+    X = np.concatenate([X, np.repeat(X[:, -1:], pad, 1)], 1)
+    I = np.concatenate([I, np.repeat(I[-1:], pad, 0)], 0)
+    return X, I
+
+
+def _style_setup(model, couple, prior):
+    """Which factors are inferred, fixed vectors of the others, Dirichlet concentrations."""
+    fixed, conc, inferred = {}, {}, []
+    for f in model.spec.factors:
+        K = len(model.levels[f])
+        given = couple if f == "couple" else None
+        if K == 1:  # a single level: the style is trivially [1]
+            fixed[f] = np.ones(1)
+        elif f == "emotion" or given is None:
+            inferred.append(f)
+            c = np.ones(K) if (f != "emotion" or prior is None) else np.asarray(prior, float)
+            if c.shape != (K,) or np.any(c <= 0):
+                raise BayesmotionError(f"prior must be {K} positive Dirichlet concentrations "
+                                       f"over {list(model.levels[f])}")
+            conc[f] = c
+        else:
+            from .generate import _coords
+
+            fixed[f] = _coords(model, f, given)
+    if "emotion" not in model.levels:
+        raise BayesmotionError("the model has no 'emotion' style factor")
+    return fixed, conc, inferred
+
+
+def _lbfgs(params, args, statics, max_iter):
+    from jax.flatten_util import ravel_pytree
+
+    x0, unravel = ravel_pytree(params)
+
+    def fun(x):
+        v, g = _neg_value_and_grad(unravel(jnp.asarray(x)), *args, **statics)
+        v = float(v)
+        g = np.asarray(ravel_pytree(g)[0], dtype=np.float64)
+        if not np.isfinite(v) or not np.all(np.isfinite(g)):
+            return 1e300, np.zeros_like(g)
+        return v, g
+
+    res = scipy.optimize.minimize(fun, np.asarray(x0, np.float64), jac=True,
+                                  method="L-BFGS-B", options={"maxiter": max_iter})
+    return unravel(jnp.asarray(res.x)), res
+
+
+def infer_emotion(model, clip, *, frames=None, couple=None, prior=None, method: str = "emcee",
+                  seed: int = 0, n_walkers: int = 16, n_steps: int = 600, n_draws: int = 4,
+                  max_iter: int = 200, latent_uncertainty: bool = True) -> EmotionPosterior:
+    """Posterior over the emotion coordinates of an observed clip.
+
+    Args:
+        model: a FittedHGPDM, or a Posterior (the answer then pools ``n_draws`` draws).
+        clip: a Trial, one or two Motions, BVH path(s), or model-space poses (T, D) / (A, T, D).
+        frames: a slice or index array of frames to use (online inference: ``slice(0, k)``).
+        couple: the clip's couple (label or coordinates); inferred when None.
+        prior: Dirichlet concentrations over the emotion levels (default flat, all ones).
+        method: "emcee" (the only sampler for now; NUTS is used for the model posterior).
+        seed: seeds the walkers.
+        n_walkers, n_steps: emcee settings (per posterior draw).
+        max_iter: L-BFGS iterations of the projection.
+        latent_uncertainty: compute the diagonal Laplace sd of the latents.
+    Returns:
+        EmotionPosterior.
+    """
+    from .posterior import Posterior
+
+    if method != "emcee":
+        raise BayesmotionError(f"method must be 'emcee', got {method!r}")
+    if isinstance(model, Posterior):
+        idx = np.linspace(0, model.n_draws - 1, min(n_draws, model.n_draws)).astype(int)
+        parts = [_infer_one(model.model, model.predictor(int(i)), clip, frames, couple, prior,
+                            seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
+                            latent_uncertainty and k == 0)
+                 for k, i in enumerate(idx)]
+        return _pool(parts)
+    return _infer_one(model, condition(model), clip, frames, couple, prior, seed, n_walkers,
+                      n_steps, max_iter, latent_uncertainty)
+
+
+def _infer_one(model, P, clip, frames, couple, prior, seed, n_walkers, n_steps, max_iter,
+               latent_uncertainty):
+    import emcee
+
+    t0 = time.perf_counter()
+    Ys = clip_poses(model, clip)
+    if frames is not None:
+        Ys = [Y[frames] for Y in Ys]
+    T = Ys[0].shape[0]
+    o = model.spec.order
+    if T <= o:
+        raise BayesmotionError(f"the clip needs more than {o} frames, got {T}")
+    B = _bucket(T)
+    mask = jnp.asarray(np.arange(B) < T)
+    Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
+    fixed, conc, inferred = _style_setup(model, couple, prior)
+    X0, I0 = _init_latents(model, Ys, B)
+    params = {"X": jnp.asarray(X0), "I": jnp.asarray(I0)}
+    for f in inferred:
+        params["u:" + f] = simplex_to_style(conc[f][None] / conc[f].sum())[0]
+    statics = {"int_factors": tuple(model.spec.interaction_factors),
+               "dyn_factors": tuple(model.spec.dynamics_factors),
+               "init_var": float(model.spec.priors.init_var)}
+    fixed_j = {k: jnp.asarray(v) for k, v in fixed.items()}
+    conc_j = {k: jnp.asarray(v) for k, v in conc.items()}
+    args = (P, Yp, mask, fixed_j, conc_j)
+    params, res = _lbfgs(params, args, statics, max_iter)
+    latents = {"X": params["X"], "I": params["I"]}
+    sd = {}
+    if latent_uncertainty:
+        key = jax.random.PRNGKey(seed)
+        probes = jax.tree_util.tree_map(
+            lambda x: jax.random.rademacher(key, (16,) + x.shape).astype(x.dtype), latents)
+        diag = _latent_diag_hessian(params, probes, *args, **statics)
+        sd = {f"{k}_sd": np.asarray(1.0 / jnp.sqrt(jnp.maximum(v, 1e-12)))[..., :T, :]
+              if k == "X" else np.asarray(1.0 / jnp.sqrt(jnp.maximum(v, 1e-12)))[:T]
+              for k, v in diag.items()}
+    keys = tuple(("u:" + f, len(model.levels[f]) - 1) for f in sorted(inferred))
+    x0 = np.concatenate([np.asarray(params[k]) for k, _ in keys])
+    ndim = x0.size
+    W = max(n_walkers, 2 * ndim + 2)
+    W += W % 2
+    rng = np.random.default_rng(seed)
+    p0 = x0 + 0.05 * rng.standard_normal((W, ndim))
+
+    def log_prob(xs):
+        return np.asarray(_style_logp_batch(jnp.asarray(xs), latents, *args, **statics,
+                                            keys=keys), dtype=np.float64)
+
+    sampler = emcee.EnsembleSampler(W, ndim, log_prob, vectorize=True)
+    state = emcee.State(p0, random_state=np.random.RandomState(seed).get_state())
+    sampler.run_mcmc(state, n_steps, progress=False)
+    burn = n_steps // 3
+    chain = sampler.get_chain(discard=burn)  # (steps, W, ndim)
+    lp = sampler.get_log_prob(discard=burn)
+    tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
+    styles = {}
+    start = 0
+    for k, n in keys:
+        u = chain[..., start:start + n]
+        s = np.asarray(style_to_simplex(jnp.asarray(u.reshape(-1, n))))
+        styles[k[2:]] = np.swapaxes(s.reshape(*u.shape[:2], n + 1), 0, 1)
+        start += n
+    info = {"n_frames": T, "seconds": time.perf_counter() - t0, "tau": tau,
+            "acceptance": float(np.mean(sampler.acceptance_fraction)),
+            "map_objective": float(res.fun), "map_iterations": int(res.nit),
+            "n_samples": int(chain.shape[0] * chain.shape[1]),
+            "ess": float(chain.shape[0] * chain.shape[1] / np.max(tau))}
+    lat = {"X": np.asarray(latents["X"])[:, :T], "I": np.asarray(latents["I"])[:T], **sd}
+    cl = "couple" in styles
+    return EmotionPosterior(tuple(model.levels["emotion"]), styles["emotion"], lat,
+                            np.swapaxes(lp, 0, 1),
+                            tuple(model.levels["couple"]) if cl else None,
+                            styles.get("couple"), info)
+
+
+def _pool(parts: list[EmotionPosterior]) -> EmotionPosterior:
+    """Mixture over posterior draws: stack the chains of every part."""
+    first = parts[0]
+    n = min(p.samples.shape[1] for p in parts)
+    cat = lambda xs: np.concatenate([x[:, -n:] for x in xs])
+    info = dict(first.info)
+    info.update(seconds=sum(p.info["seconds"] for p in parts), n_model_draws=len(parts),
+                n_samples=sum(p.info["n_samples"] for p in parts),
+                ess=sum(p.info["ess"] for p in parts))
+    return EmotionPosterior(first.levels, cat([p.samples for p in parts]), first.latents,
+                            cat([p.log_prob for p in parts]), first.couple_levels,
+                            None if first.couple_samples is None else cat(
+                                [p.couple_samples for p in parts]), info)
+
+
+def infer_online(model, clip, *, start: int | None = None, step: int = 5, **kwargs):
+    """Yield an EmotionPosterior for growing prefixes of the clip (frames arriving online)."""
+    n = clip_poses(model, clip)[0].shape[0]
+    k = start or (model.spec.order + 3)
+    while True:
+        k = min(k, n)
+        yield infer_emotion(model, clip, frames=slice(0, k), **kwargs)
+        if k == n:
+            return
+        k += step
