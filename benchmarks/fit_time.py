@@ -1,0 +1,188 @@
+"""Full H-GPDM MAP fit time: the built-in handshakes and a Taubert-size problem.
+
+1. ``HGPDM().fit(load_handshakes(), progress=False)`` with default settings (target < 5 min).
+2. Taubert-size: 12 two-actor trials of 100 frames, 4 emotions x 3 repetitions of couple "c1",
+   D = 159 per actor. Built from the shipped CMU handshake by ``load_handshakes(fps=...,
+   window="shake")`` (the real recording with the emotion transforms) at the lowest frame rate
+   that makes the shake window exactly 100 frames (59.5 fps for the 0.8 s + 0.85 s window),
+   restricted to couple c1. The CMU skeleton gives 96 pose dimensions per actor, so each
+   actor's Y is padded to 159 with 63 synthetic channels (random mixtures of the real ones
+   plus 5 % noise, same scale) and the model is fitted with the package's own MAP driver
+   (``map_optimize`` on ``LogPosterior``, exactly what ``fit_hgpdm`` runs). Taubert et al.
+   (2012) report about 20 hours on a 2.7 GHz quad-core; target < 10 min.
+
+``--quick`` caps L-BFGS at a few iterations: the times are then per-iteration indications and
+the targets are not judged (the JSON says so).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+TARGET_BUILTIN_S = 300.0
+TARGET_TAUBERT_S = 600.0
+TAUBERT = {"trials": 12, "frames": 100, "D": 159, "couple": "c1"}
+# full mode: a fit still running after this many seconds is stopped and reported as not met
+TIMEOUT_S = {"builtin": 3 * TARGET_BUILTIN_S, "taubert": 2 * TARGET_TAUBERT_S}
+
+
+def _summary(diag: dict, wall: float) -> dict:
+    keys = ("iterations", "evaluations", "objective", "initial_objective", "grad_norm",
+            "converged", "message", "jitter", "n_parameters", "seconds")
+    out = {k: diag[k] for k in keys if k in diag}
+    out["wall_s_including_data_prep"] = wall
+    out["seconds_per_iteration"] = diag["seconds"] / max(diag["iterations"], 1)
+    out["seconds_per_evaluation"] = diag["seconds"] / max(diag["evaluations"], 1)
+    out["jitter_events"] = len(diag.get("jitter_events", []))
+    return out
+
+
+def fit_builtin(max_iter: int) -> dict:
+    from bayesmotion.datasets import load_handshakes
+    from bayesmotion.model import HGPDM
+
+    t0 = time.perf_counter()
+    ds = load_handshakes()
+    fitted = HGPDM().fit(ds, max_iter=max_iter, progress=False)
+    wall = time.perf_counter() - t0
+    out = _summary(fitted.diagnostics, wall)
+    out["data"] = {"trials": len(ds), "frames_per_trial": ds[0].n_frames, "fps": ds.fps,
+                   "N": int(fitted.data.lengths.sum()),
+                   "D_per_actor": [int(y.shape[1]) for y in fitted.data.Y]}
+    return out
+
+
+def pad_channels(Y: np.ndarray, D: int, rng: np.random.Generator) -> np.ndarray:
+    """(N, d) -> (N, D): extra channels are random mixtures of the real ones plus 5 % noise."""
+    extra = D - Y.shape[1]
+    if extra <= 0:
+        return Y
+    M = rng.normal(0, 1, (Y.shape[1], extra)) / np.sqrt(Y.shape[1])
+    Z = Y @ M
+    Z = Z + 0.05 * Z.std() * rng.standard_normal(Z.shape)
+    return np.concatenate([Y, Z * (Y.std() / Z.std())], axis=1)
+
+
+def taubert_fps(frames: int = TAUBERT["frames"]) -> float:
+    """The lowest frame rate (0.5 fps steps) at which the shake window has ``frames`` frames."""
+    from bayesmotion.data.handshakes import WINDOW
+
+    for fps in np.arange(20.0, 240.0, 0.5):
+        if round(WINDOW[0] * fps) + round(WINDOW[1] * fps) + 1 == frames:
+            return float(fps)
+    return round((frames - 1) / sum(WINDOW), 1)
+
+
+def taubert_data():
+    from bayesmotion.datasets import load_handshakes
+    from bayesmotion.model import HGPDM, fit_codecs, prepare_data
+
+    ds = load_handshakes(fps=taubert_fps(), window="shake").filter(couple=TAUBERT["couple"])
+    spec = HGPDM().resolved(ds)
+    data = prepare_data(spec, ds, fit_codecs(spec, ds))
+    d_real = [int(y.shape[1]) for y in data.Y]
+    rng = np.random.default_rng(0)
+    data = data._replace(Y=tuple(pad_channels(y, TAUBERT["D"], rng) for y in data.Y))
+    return spec, ds, data, d_real
+
+
+def fit_taubert(max_iter: int) -> dict:
+    from bayesmotion.model import LogPosterior, init_params
+    from bayesmotion.optim import map_optimize
+
+    t0 = time.perf_counter()
+    spec, ds, data, d_real = taubert_data()
+    logp = LogPosterior(spec, data)
+    params, diag = map_optimize(logp, init_params(spec, data, 0), max_iter=max_iter,
+                                progress=False, desc="Taubert-size fit")
+    wall = time.perf_counter() - t0
+    out = _summary(diag, wall)
+    out["data"] = {"trials": len(ds), "frames_per_trial": sorted({t.n_frames for t in ds}),
+                   "fps": ds.fps, "N": int(data.lengths.sum()),
+                   "emotions": sorted(set(ds.labels("emotion"))),
+                   "couples": sorted(set(ds.labels("couple"))),
+                   "D_real_per_actor": d_real, "D_used_per_actor": [int(y.shape[1])
+                                                                   for y in data.Y],
+                   "padding": f"{TAUBERT['D'] - d_real[0]} synthetic channels per actor "
+                              "(random mixtures of the real channels + 5% noise)"}
+    return out
+
+
+def run_part(part: str, max_iter: int, timeout: float | None) -> dict:
+    """One fit in a fresh child process; on timeout, a record saying so."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "out.json"
+        cmd = [sys.executable, __file__, "--part", part, "--max-iter", str(max_iter),
+               "--out", str(out)]
+        t0 = time.perf_counter()
+        try:
+            subprocess.run(cmd, check=True, capture_output=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return {"timed_out": True, "timeout_s": timeout, "seconds": None,
+                    "wall_s": time.perf_counter() - t0, "converged": False}
+        return {"timed_out": False, **json.loads(out.read_text())}
+
+
+def run(quick: bool) -> dict:
+    from _common import headline
+
+    max_iter = 5 if quick else 1000
+    b = run_part("builtin", max_iter, None if quick else TIMEOUT_S["builtin"])
+    t = run_part("taubert", max_iter, None if quick else TIMEOUT_S["taubert"])
+    note = f"quick: max_iter={max_iter}, target not judged" if quick else ""
+
+    def row(label, r, target):
+        if r["timed_out"]:
+            return headline(label, None, "s", f"< {target:g} s", False,
+                            f"not finished after {r['timeout_s']:.0f} s (stopped)")
+        met = None if quick else r["seconds"] < target
+        return headline(label, r["seconds"], "s", f"< {target:g} s", met,
+                        note or f"{r['iterations']} it, converged={r['converged']}, "
+                                f"{r['message'][:40]}")
+
+    def per_it(label, r):
+        return headline(label, r.get("seconds_per_iteration"), "s",
+                        note="" if not r["timed_out"] else "timed out")
+
+    nb = b.get("data", {}).get("N", "?")
+    nt = t.get("data", {}).get("N", "?")
+    return {
+        "settings": {"max_iter": max_iter, "quick": quick, "gtol": 1e-5, "seed": 0,
+                     "timeouts_s": None if quick else TIMEOUT_S,
+                     "note": "quick mode caps L-BFGS iterations; full mode uses the default "
+                             "max_iter=1000" if quick else "default fit settings; each fit "
+                             "in a fresh process (compile time included)"},
+        "builtin": b,
+        "taubert_size": t,
+        "taubert_reference": "Taubert et al. 2012: about 20 h on a 2.7 GHz quad-core",
+        "headline": [
+            row(f"MAP fit, built-in handshakes (N={nb}, D=96)", b, TARGET_BUILTIN_S),
+            per_it("  seconds per L-BFGS iteration (built-in)", b),
+            row(f"MAP fit, Taubert-size (N={nt}, D={TAUBERT['D']})", t, TARGET_TAUBERT_S),
+            per_it("  seconds per L-BFGS iteration (Taubert-size)", t),
+        ],
+    }
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(HERE))
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--part", choices=("builtin", "taubert"), required=True)
+    ap.add_argument("--max-iter", type=int, required=True)
+    ap.add_argument("--out", required=True)
+    a = ap.parse_args()
+    from _common import write_json
+
+    import bayesmotion  # noqa: F401  (float64)
+
+    fn = fit_builtin if a.part == "builtin" else fit_taubert
+    write_json(Path(a.out), fn(a.max_iter))

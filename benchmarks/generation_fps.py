@@ -1,0 +1,211 @@
+"""Generated frames per second, with and without predictive variance, and where the time goes.
+
+Models: the built-in handshakes (24 trials, N = 816 training frames) and, in the full run,
+the same with 4 repetitions (32 trials, N = 1088, the ~1000-frame size). Generation cost does
+not depend on how far the MAP fit went, so the models are fitted with a few L-BFGS iterations
+only (said in the JSON).
+
+Timed after warm-up (median of repeats), each producing ``n_frames`` frames of both actors:
+
+* ``generate_public``: ``fitted.generate(emotion=..., n_frames=T, n_samples=0)`` -- mean rollout
+  with the one-step variance carried to latent, pose, angle and joint-position space; this
+  re-conditions every layer (Cholesky of the training kernels) on every call;
+* ``generate_cached_predictor``: the same with the conditioned ``Predictor`` passed in;
+* ``generate_public_16_samples``: ``n_samples=16`` (frames/s counted per mean frame and per
+  generated frame, 17 T);
+* ``mean_only``: dynamics mean rollout + top-down mean mapping + decoding + FK, no variance;
+* ``dynamics_rollout_core``: the jitted ``lax.scan`` core alone (latent frames), mean and 16
+  vmapped sampled rollouts;
+* a profile of the public call's parts: conditioning, dynamics rollout, top-down mapping,
+  decoding to channels, FK, FK Jacobian for the position variance.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+TARGET_FPS = 10_000.0
+REALTIME_FPS = 120.0
+
+
+MODELS_FULL = {"builtin": {}, "n_repetitions_4": {"n_repetitions": 4}}
+MODELS_QUICK = {"builtin": {}}
+
+
+def fit_model(max_iter: int, **dataset_kwargs):
+    from bayesmotion.datasets import load_handshakes
+    from bayesmotion.model import HGPDM
+
+    ds = load_handshakes(**dataset_kwargs)
+    return HGPDM().fit(ds, max_iter=max_iter, progress=False)
+
+
+def _inputs(model, T: int, emotion: str = "happy"):
+    import jax.numpy as jnp
+
+    from bayesmotion.generate import _start_trial, resolve_style
+
+    values = {"emotion": emotion, "couple": model.levels["couple"][0]}
+    coords = {f: resolve_style(model, f, values[f], T) for f in model.spec.factors}
+    o = model.spec.order
+    r = _start_trial(model, coords, None)
+    I0 = jnp.asarray(model.latents(r)["I"][:o])
+    dyn_s = tuple(jnp.asarray(coords[f][o:]) for f in model.spec.dynamics_factors)
+    int_s = tuple(jnp.asarray(coords[f]) for f in model.spec.interaction_factors)
+    return r, I0, dyn_s, int_s
+
+
+def profile_parts(model, P, T: int, repeats: int) -> dict:
+    """Seconds of each stage of one ``generate(n_samples=0)`` call."""
+    import jax
+    import jax.numpy as jnp
+    from _common import block, timeit
+
+    from bayesmotion.generate import (
+        _fk_and_jacobian,
+        _positions_with_var,
+        condition,
+        decode_actor,
+        dynamics_rollout,
+        map_down,
+    )
+
+    r, I0, dyn_s, int_s = _inputs(model, T)
+    o, A = model.spec.order, model.n_actors
+    key = jax.random.PRNGKey(0)
+    I_gen, _ = dynamics_rollout(P, I0, dyn_s, key, T - o, False)
+    I = jnp.concatenate([I0, I_gen])
+    outs, _ = map_down(P, I, int_s, A)
+    Y = [np.asarray(l[1]) for l in outs]
+    Yv = [np.asarray(l[2]) for l in outs]
+    dec = [decode_actor(model, a, Y[a], Yv[a], r) for a in range(A)]
+
+    def fk_only():
+        for v, _, sk in dec:
+            np.asarray(_fk_and_jacobian(sk)[0](jnp.asarray(v)))
+
+    def fk_jac():
+        for v, _, sk in dec:
+            np.asarray(_fk_and_jacobian(sk)[1](jnp.asarray(v)))
+
+    stages = {
+        "condition (Cholesky of all training kernels)": lambda: block(condition(model)),
+        "dynamics_rollout (lax.scan, mean + one-step var)":
+            lambda: block(dynamics_rollout(P, I0, dyn_s, key, T - o, False)),
+        "map_down (interaction + bottom mean/var)": lambda: block(map_down(P, I, int_s, A)),
+        "decode Y -> channels (NumPy)":
+            lambda: [decode_actor(model, a, Y[a], Yv[a], r) for a in range(A)],
+        "forward kinematics": fk_only,
+        "FK Jacobian (jacfwd, for position variance)": fk_jac,
+        "positions + variance (_positions_with_var)":
+            lambda: [_positions_with_var(sk, v, var) for v, var, sk in dec],
+    }
+    return {name: timeit(fn, repeats=repeats, warmup=1)["median_s"]
+            for name, fn in stages.items()}
+
+
+def measure_model(model, T: int, repeats: int) -> dict:
+    import jax
+    from _common import block, timeit
+
+    from bayesmotion.generate import _map_and_decode, dynamics_rollout, generate
+    from bayesmotion.predict import condition
+
+    P = block(condition(model))
+    r, I0, dyn_s, int_s = _inputs(model, T)
+    o = model.spec.order
+    key = jax.random.PRNGKey(0)
+    keys = jax.random.split(key, 16)
+    sampled = jax.jit(jax.vmap(lambda k: dynamics_rollout(P, I0, dyn_s, k, T - o, True)[0]))
+
+    def mean_only():
+        I_gen, _ = dynamics_rollout(P, I0, dyn_s, key, T - o, False)
+        I = jax.numpy.concatenate([I0, I_gen])
+        return _map_and_decode(model, P, I, int_s, r, with_var=False)
+
+    cases = {
+        "generate_public": (lambda: model.generate(emotion="happy", n_frames=T), T),
+        "generate_cached_predictor":
+            (lambda: generate(model, "happy", None, T, 0, predictor=P), T),
+        "generate_public_16_samples":
+            (lambda: model.generate(emotion="happy", n_frames=T, n_samples=16), T),
+        "mean_only": (mean_only, T),
+        "dynamics_rollout_core_mean":
+            (lambda: block(dynamics_rollout(P, I0, dyn_s, key, T - o, False)), T - o),
+        "dynamics_rollout_core_16_samples": (lambda: block(sampled(keys)), 16 * (T - o)),
+    }
+    out = {}
+    for name, (fn, frames) in cases.items():
+        t = timeit(fn, repeats=repeats, warmup=1)
+        out[name] = {"median_s": t["median_s"], "frames": frames,
+                     "frames_per_s": frames / t["median_s"], "times_s": t["times_s"]}
+    s16 = out["generate_public_16_samples"]
+    s16["generated_frames_incl_samples"] = 17 * T
+    s16["generated_frames_per_s_incl_samples"] = 17 * T / s16["median_s"]
+    prof = profile_parts(model, P, T, repeats)
+    total = out["generate_public"]["median_s"]
+    out["profile_s"] = prof
+    out["profile_fraction_of_generate_public"] = {k: v / total for k, v in prof.items()
+                                                  if "_positions_with_var" not in k}
+    return out
+
+
+def run(quick: bool) -> dict:
+    from _common import headline
+
+    T = 200 if quick else 500
+    repeats = 2 if quick else 7
+    max_iter = 3 if quick else 30
+    results, rows = {}, []
+    models = MODELS_QUICK if quick else MODELS_FULL
+    for label, kwargs in models.items():
+        t0 = time.perf_counter()
+        model = fit_model(max_iter, **kwargs)
+        fit_s = time.perf_counter() - t0
+        N = int(model.data.lengths.sum())
+        res = measure_model(model, T, repeats)
+        res["training_frames_N"] = N
+        res["fit_seconds_max_iter"] = [fit_s, max_iter]
+        results[label] = res
+        pub = res["generate_public"]["frames_per_s"]
+        prof = res["profile_fraction_of_generate_public"]
+        top = max(prof, key=prof.get)
+        rows += [
+            headline(f"generate with variance, N={N} (public, incl. conditioning)", pub,
+                     "frames/s", f">= {TARGET_FPS:,.0f}", pub >= TARGET_FPS,
+                     f"largest part: {top} {prof[top]:.0%}"),
+            headline("  same, predictor cached", res["generate_cached_predictor"]
+                     ["frames_per_s"], "frames/s", f">= {TARGET_FPS:,.0f}",
+                     res["generate_cached_predictor"]["frames_per_s"] >= TARGET_FPS),
+            headline("  n_samples=16 (mean frames/s)",
+                     res["generate_public_16_samples"]["frames_per_s"], "frames/s",
+                     f">= {REALTIME_FPS:g} (real time)",
+                     res["generate_public_16_samples"]["frames_per_s"] >= REALTIME_FPS),
+            headline("  mean only, no variance", res["mean_only"]["frames_per_s"], "frames/s"),
+            headline("  dynamics_rollout core (mean)",
+                     res["dynamics_rollout_core_mean"]["frames_per_s"], "frames/s"),
+        ]
+    return {
+        "settings": {"n_frames": T, "repeats": repeats, "fit_max_iter": max_iter,
+                     "models": {k: f"load_handshakes(**{v})" for k, v in models.items()},
+                     "emotion": "happy", "quick": quick,
+                     "note": "models fitted with few iterations: generation cost depends on "
+                             "the training size, not on convergence"},
+        "results": results,
+        "notes": _notes(results),
+        "headline": rows,
+    }
+
+
+def _notes(results) -> list[str]:
+    notes = []
+    for label, res in results.items():
+        prof = res["profile_s"]
+        total = res["generate_public"]["median_s"]
+        parts = ", ".join(f"{k}: {v * 1e3:.1f} ms" for k, v in prof.items())
+        notes.append(f"{label} (N={res['training_frames_N']}): one generate() of "
+                     f"{res['generate_public']['frames']} frames takes {total * 1e3:.1f} ms; "
+                     f"{parts}")
+    return notes

@@ -1,0 +1,181 @@
+"""Run the bayesmotion benchmark suite and write benchmarks/results/.
+
+    python benchmarks/run_all.py [--quick] [--only NAME ...] [--blas-threads N]
+
+Every benchmark is a module ``benchmarks/<name>.py`` with ``run(quick: bool) -> dict``. Each one
+runs in its own child process (fresh JAX caches, no interference between benchmarks, a hang or
+crash in one does not stop the others) and its result is written atomically to
+``results/<name>.json`` together with the machine info (CPU model, cores, versions, date, load)
+and the settings. ``results/README.md`` is then rebuilt from every result file present: a
+markdown table of the headline numbers and their targets.
+
+Adding a benchmark (e.g. emotion inference seconds per clip, the interpolation study): write
+``benchmarks/<name>.py`` with ``run(quick) -> dict`` -- put the settings under ``"settings"``
+and the README rows under ``"headline"`` (``_common.headline(metric, value, unit, target,
+met, note)``) -- and append ``<name>`` to ``BENCHMARKS`` below.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import subprocess
+import sys
+import time
+import traceback
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from _common import RESULTS, machine_info, write_json, write_text  # noqa: E402
+
+# The suite, in run order. Hook: append the module name of a new benchmark here.
+BENCHMARKS = [
+    "gplvm_vs_gpy",
+    "fit_time",
+    "eval_scaling",
+    "generation_fps",
+    "sampler_ess",
+    "blas_threads",
+]
+TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
+
+
+def run_one(name: str, quick: bool) -> dict:
+    """Import and run one benchmark in this process; the result with machine info."""
+    import bayesmotion  # noqa: F401  (float64 on, as in the package)
+
+    start = machine_info()
+    t0 = time.perf_counter()
+    try:
+        result = importlib.import_module(name).run(quick)
+        status = "ok"
+    except Exception as e:  # a failing benchmark is recorded, not fatal to the suite
+        result = {"error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()}
+        status = "error"
+    machine = machine_info()
+    machine["load_average_at_start"] = start["load_average_1_5_15"]
+    return {"name": name, "mode": "quick" if quick else "full", "status": status,
+            "wall_s": time.perf_counter() - t0, "machine": machine, **result}
+
+
+def run_child(name: str, quick: bool, blas_threads: int | None = None) -> dict:
+    """Run one benchmark in a child process with a timeout; return what it wrote."""
+    mode = "quick" if quick else "full"
+    cmd = [sys.executable, __file__, "--worker", name] + (["--quick"] if quick else [])
+    env = dict(os.environ)
+    if blas_threads is not None:
+        env["OPENBLAS_NUM_THREADS"] = str(blas_threads)
+    path = RESULTS / f"{name}.json"
+    t0, started = time.perf_counter(), time.time()
+    try:
+        r = subprocess.run(cmd, timeout=TIMEOUT_S[mode], capture_output=True, text=True,
+                           env=env)
+        err = r.stderr.strip().splitlines()[-5:] if r.returncode else None
+    except subprocess.TimeoutExpired:
+        err = [f"timed out after {TIMEOUT_S[mode]} s"]
+    if err is None and path.exists() and path.stat().st_mtime >= started:
+        return json.loads(path.read_text())
+    res = {"name": name, "mode": mode, "status": "error",
+           "error": " | ".join(err or ["the worker wrote no result"]),
+           "wall_s": time.perf_counter() - t0, "machine": machine_info()}
+    write_json(path, res)
+    return res
+
+
+# --------------------------------------------------------------------------- README
+def _fmt(v) -> str:
+    if v is None:
+        return "--"
+    if isinstance(v, bool):
+        return str(v)
+    if isinstance(v, int | float):
+        a = abs(v)
+        if a == 0 or 1e-3 <= a < 1e6:
+            return f"{v:,.3g}" if a < 1000 else f"{v:,.0f}"
+        return f"{v:.2e}"
+    return str(v)
+
+
+def readme(results: dict[str, dict]) -> str:
+    lines = ["# Benchmark results", "",
+             "Written by `python benchmarks/run_all.py` (do not edit by hand). One JSON file per "
+             "benchmark beside this file holds every measurement, the settings and the machine.",
+             ""]
+    machines = {(r["machine"]["cpu_model"], r["machine"]["cores"]) for r in results.values()
+                if "machine" in r}
+    for cpu, cores in sorted(machines):
+        lines.append(f"Machine: {cpu}, {cores} cores.")
+    any_r = next(iter(results.values()), {})
+    m = any_r.get("machine", {})
+    lines += [f"Python {m.get('python', '?')}, jax {m.get('jax', '?')}, numpy "
+              f"{m.get('numpy', '?')}; float64 on CPU. Timings are wall-clock medians after "
+              "warm-up; other processes may share the cores (each JSON records the load "
+              "average at start and end).", "",
+              "| benchmark | mode | metric | value | unit | target | met | note |",
+              "|---|---|---|---|---|---|---|---|"]
+    for name, r in results.items():
+        mode = r.get("mode", "?")
+        date = r.get("machine", {}).get("date_utc", "")[:10]
+        if r.get("status") != "ok":
+            lines.append(f"| {name} | {mode} | **failed** | | | | | {r.get('error', '')} |")
+            continue
+        for i, h in enumerate(r.get("headline", [])):
+            met = {True: "met", False: "**not met**", None: ""}[h.get("met")]
+            label = f"{name} ({date})" if i == 0 else ""
+            note = str(h.get("note", "")).replace("|", "/")
+            lines.append(f"| {label} | {mode} | {h['metric'].strip()} | {_fmt(h['value'])} | "
+                         f"{h.get('unit', '')} | {h.get('target', '')} | {met} | {note} |")
+    quick = [n for n, r in results.items() if r.get("mode") == "quick"]
+    if quick:
+        lines += ["", f"**Quick mode** ({', '.join(quick)}): small sizes and capped iterations "
+                      "(see each JSON's settings); targets that need the full run are not "
+                      "judged there."]
+    return "\n".join(lines) + "\n"
+
+
+def write_readme() -> None:
+    results = {}
+    for name in BENCHMARKS:
+        p = RESULTS / f"{name}.json"
+        if p.exists():
+            results[name] = json.loads(p.read_text())
+    write_text(RESULTS / "README.md", readme(results))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="small sizes, a few minutes in all")
+    ap.add_argument("--only", nargs="+", choices=BENCHMARKS, metavar="NAME",
+                    help=f"run only these ({', '.join(BENCHMARKS)})")
+    ap.add_argument("--blas-threads", type=int, metavar="N",
+                    help="set OPENBLAS_NUM_THREADS=N for the benchmarks (default: inherit; "
+                         "recorded in each JSON's machine.thread_env)")
+    ap.add_argument("--worker", choices=BENCHMARKS, help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    if a.worker:
+        os.environ.setdefault("TQDM_DISABLE", "1")
+        res = run_one(a.worker, a.quick)
+        write_json(RESULTS / f"{a.worker}.json", res)  # an error is recorded in the JSON
+        return 0
+    failed = []
+    for name in a.only or BENCHMARKS:
+        print(f"[{time.strftime('%H:%M:%S')}] {name} ...", flush=True)
+        res = run_child(name, a.quick, a.blas_threads)
+        print(f"    {res['status']} in {res['wall_s']:.0f} s", flush=True)
+        for h in res.get("headline", []):
+            print(f"    {h['metric']}: {_fmt(h['value'])} {h.get('unit', '')}", flush=True)
+        if res["status"] != "ok":
+            failed.append(name)
+            print(f"    {res.get('error')}", flush=True)
+    write_readme()
+    print(f"wrote {RESULTS}/README.md")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
