@@ -27,3 +27,19 @@ def bandai_root():
 @pytest.fixture(scope="session")
 def bandai_files(bandai_root):
     return sorted((bandai_root / "data").glob("*.bvh"))
+
+
+@pytest.fixture(scope="session")
+def handshake_data():
+    """The built-in emotional handshakes at test size (10 fps: 17 frames per trial)."""
+    from bayesmotion.datasets import load_handshakes
+
+    return load_handshakes(fps=10.0)
+
+
+@pytest.fixture(scope="session")
+def handshake_model(handshake_data, tmp_path_factory):
+    """H-GPDM MAP fit on the test-size built-in handshakes (shared by the slow tests)."""
+    from bayesmotion import HGPDM
+
+    return HGPDM().fit(handshake_data, max_iter=300, progress=False)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .data.motion import MotionDataset
+from .errors import BayesmotionError
 from .fitted import FittedHGPDM, trial_records
 from .model import HGPDM, LogPosterior, fit_codecs, init_params, prepare_data
 from .optim import map_optimize
@@ -13,7 +14,7 @@ from .params import STYLE_PREFIX, simplex_to_style
 
 def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool = False,
               max_iter: int = 1000, gtol: float = 1e-5, seed: int = 0,
-              progress: bool = True) -> FittedHGPDM:
+              progress: bool = True, init: dict | None = None) -> FittedHGPDM:
     """Fit latents X, I and hyperparameters (gamma, beta, alpha) by MAP.
 
     Args:
@@ -26,6 +27,8 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool = Fal
         gtol: projected-gradient tolerance for convergence.
         seed: seed of the initial perturbation (the fit is deterministic for a seed).
         progress: show a progress bar with the objective.
+        init: starting parameters (e.g. a previous fit's, for warm-started refits); must have
+            the shapes this dataset implies. Default: PCA initialisation.
 
     Returns:
         FittedHGPDM with the MAP parameters and convergence diagnostics in ``.diagnostics``.
@@ -35,6 +38,12 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool = Fal
     data = prepare_data(spec, dataset, codecs)
     logp = LogPosterior(spec, data)
     params0 = init_params(spec, data, seed)
+    if init is not None:
+        for k, v in init.items():
+            if k in params0 and np.shape(v) != np.shape(params0[k]):
+                raise BayesmotionError(f"init[{k!r}] has shape {np.shape(v)}, this dataset "
+                                       f"needs {np.shape(params0[k])}")
+        params0.update({k: np.asarray(v) for k, v in init.items()})
     if optimize_style:
         for f, conc in logp.style_prior.concentration.items():
             mean = conc / conc.sum(1, keepdims=True)
