@@ -108,7 +108,8 @@ def test_constant_velocity_and_constant_acceleration_have_no_jerk():
     P = still(T)
     P[..., 0] += 0.7 * t
     P[..., 2] += 1.3 * t + 0.9 * t**2
-    assert score(P)["jerk"] < 1e-8
+    n = score(P)
+    assert n["jerk"] < 1e-8 and n["jerk_local"] < 1e-8
 
 
 def test_cubic_trajectory_has_its_analytic_jerk_and_ratio():
@@ -119,6 +120,17 @@ def test_cubic_trajectory_has_its_analytic_jerk_and_ratio():
     Q[..., 2] += 2 * c * t**3
     np.testing.assert_allclose(score(P)["jerk"], 6 * c / L, rtol=1e-6)
     np.testing.assert_allclose(score(Q, ref_of(P))["jerk_ratio"], 2.0, rtol=1e-6)
+    assert score(P)["jerk_local"] < 1e-8                # all of it is the global path's
+
+
+def test_limb_jerk_shows_in_the_body_frame():
+    T, c = 30, 0.4
+    t = (np.arange(T) / FPS)[:, None]
+    P = still(T)
+    P[:, [IDX["l_hand"], IDX["r_hand"]], 2] += c * t**3   # 2 of 18 joints jerk at 6c
+    n = score(P)
+    np.testing.assert_allclose([n["jerk"], n["jerk_local"]], 6 * c / L * np.sqrt(2 / 18),
+                               rtol=1e-6)
 
 
 def test_jerk_needs_four_frames():
@@ -184,7 +196,8 @@ def test_similarity_invariance():
     Q = 3.0 * P @ R.T + np.array([5.0, -1.0, 2.0])
     n, m = score(P, ref_of(P[::-1])), score(Q, ref_of(Q[::-1]))
     for k in ("foot_sliding", "contact_fraction", "jerk", "joint_limit_violations",
-              "foot_sliding_ratio", "jerk_ratio", "anatomical_violations"):
+              "foot_sliding_ratio", "jerk_ratio", "anatomical_violations", "jerk_local",
+              "jerk_local_ratio"):
         np.testing.assert_allclose(m[k], n[k], rtol=1e-9, atol=1e-12)
 
 
@@ -192,7 +205,8 @@ def test_real_clip_against_itself_and_frame_rate_guard():
     motion = load_cmu_handshake().actors[0]
     n = naturalness(motion, [motion])
     assert n["joint_limit_violations"] == 0.0
-    np.testing.assert_allclose([n["foot_sliding_ratio"], n["jerk_ratio"]], 1.0)
+    np.testing.assert_allclose([n["foot_sliding_ratio"], n["jerk_ratio"], n["jerk_local_ratio"]],
+                               1.0)
     assert all(np.isfinite(v) for v in n.values() if isinstance(v, float))
     # references at another rate are resampled to the motion's; a prebuilt one is checked
     half = motion.resample(motion.fps / 2)

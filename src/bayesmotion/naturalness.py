@@ -12,6 +12,9 @@ foot_sliding             L/s     mean horizontal speed of the foot's contact poi
 contact_fraction         --      fraction of (frame, foot) pairs in contact
 jerk                     L/s³    RMS over frames and the 18 semantic joints of ‖d³p/dt³‖
                                  (third finite difference of world positions)
+jerk_local               L/s³    the same for body-frame positions (root-relative, facing +Z;
+                                 :func:`~bayesmotion.features.body_frame_pose`): the limbs'
+                                 jerk without that of the global path
 joint_limit_violations   --      fraction of frames where any angle of ``ANGLE_NAMES`` leaves
                                  its allowed range (the reference range, else anatomical)
 joint_limit_exceedance   deg     largest distance of an angle outside its range (0 if none)
@@ -20,6 +23,7 @@ violations_by_angle      --      per angle, the fraction of frames out of range
 joint_limit_source       --      ``"reference"`` or ``"anatomical"``
 foot_sliding_ratio       --      foot_sliding / the reference clips' (with a reference only)
 jerk_ratio               --      jerk / the reference clips' (with a reference only)
+jerk_local_ratio         --      jerk_local / the reference clips' (with a reference only)
 =======================  ======  ===========================================================
 
 **Contacts.** A foot is in contact where its ankle or toe is within ``contact_height`` (L) of
@@ -65,7 +69,7 @@ import numpy as np
 from .data.motion import Motion
 from .errors import BayesmotionError
 from .features.joint_map import JointMap, Names
-from .features.movement import foot_contacts, leg_length
+from .features.movement import body_frame_pose, foot_contacts, leg_length
 from .features.pose import angle, semantic_positions
 
 CONTACT_HEIGHT = 0.03
@@ -127,12 +131,26 @@ def sliding_speeds(p: dict[str, np.ndarray], fps: float, L: float,
     return np.stack(out, axis=-1), contacts
 
 
-def jerk_squares(p: dict[str, np.ndarray], fps: float, L: float) -> np.ndarray:
-    """(T-3, 18) squared jerk norms ‖Δ³p‖² · fps⁶ of the semantic joints, in (L/s³)²."""
-    P = np.stack(list(p.values()), axis=1) / L
+def jerk_squares(P: np.ndarray, fps: float) -> np.ndarray:
+    """(T-3, K) squared jerk norms ‖Δ³p‖² · fps⁶ of (T, K, 3) positions P."""
     if P.shape[0] < 4:
         raise BayesmotionError(f"jerk needs at least 4 frames, got {P.shape[0]}")
     return np.sum((np.diff(P, n=3, axis=0) * fps**3) ** 2, axis=-1)
+
+
+def _clip_terms(positions: np.ndarray, names: Names, fps: float, joint_map: JointMap | None,
+                contact_height: float) -> dict[str, np.ndarray]:
+    """Per-frame ingredients of every proxy: angles, contact speeds, squared jerks."""
+    p = semantic_positions(positions, names, joint_map)
+    L = leg_length(p)
+    v, c = sliding_speeds(p, fps, L, contact_height)
+    return {
+        "angles": joint_angles(p),
+        "sliding": v[c],
+        "contacts": c,
+        "jerk2": jerk_squares(np.stack(list(p.values()), axis=1) / L, fps),
+        "jerk2_local": jerk_squares(body_frame_pose(positions, names, joint_map), fps),
+    }
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,7 +161,8 @@ class NaturalnessReference:
         fps: frame rate the statistics were taken at.
         low, high: (12,) per-angle min and max over all reference frames (``ANGLE_NAMES``).
         foot_sliding: mean contact-point speed over all reference contact frames, L/s.
-        jerk: RMS jerk over all reference frames and joints, L/s³.
+        jerk, jerk_local: RMS jerk (world, body frame) over all reference frames and joints,
+            L/s³.
         n_clips: number of reference clips.
     """
 
@@ -152,6 +171,7 @@ class NaturalnessReference:
     high: np.ndarray
     foot_sliding: float
     jerk: float
+    jerk_local: float
     n_clips: int
 
     @classmethod
@@ -161,18 +181,13 @@ class NaturalnessReference:
         """Pool the statistics of (T_i, J, 3) position arrays of one skeleton at ``fps``."""
         if not clips:
             raise BayesmotionError("NaturalnessReference needs at least one reference clip")
-        angles, slide, n_contact, jerk2, n_jerk = [], 0.0, 0, 0.0, 0
-        for X in clips:
-            p = semantic_positions(X, names, joint_map)
-            L = leg_length(p)
-            angles.append(joint_angles(p))
-            v, c = sliding_speeds(p, fps, L, contact_height)
-            slide, n_contact = slide + float(v[c].sum()), n_contact + int(c.sum())
-            j2 = jerk_squares(p, fps, L)
-            jerk2, n_jerk = jerk2 + float(j2.sum()), n_jerk + j2.size
-        A = np.concatenate(angles)
-        return cls(float(fps), A.min(0), A.max(0), slide / max(n_contact, 1),
-                   float(np.sqrt(jerk2 / n_jerk)), len(clips))
+        terms = [_clip_terms(X, names, fps, joint_map, contact_height) for X in clips]
+        pooled = {k: np.concatenate([t[k].ravel() for t in terms])
+                  for k in ("sliding", "jerk2", "jerk2_local")}
+        A = np.concatenate([t["angles"] for t in terms])
+        slide = float(pooled["sliding"].mean()) if pooled["sliding"].size else 0.0
+        return cls(float(fps), A.min(0), A.max(0), slide, float(np.sqrt(pooled["jerk2"].mean())),
+                   float(np.sqrt(pooled["jerk2_local"].mean())), len(clips))
 
     @classmethod
     def from_motions(cls, motions: Sequence[Motion], fps: float | None = None,
@@ -219,11 +234,8 @@ def naturalness_from_positions(positions: np.ndarray, names: Names, fps: float,
         raise BayesmotionError(f"reference statistics were taken at {reference.fps} fps, the "
                                f"motion runs at {fps} fps; rebuild the reference at {fps} fps "
                                "(jerk depends on the frame rate)")
-    p = semantic_positions(positions, names, joint_map)
-    L = leg_length(p)
-    v, c = sliding_speeds(p, fps, L, contact_height)
-    jerk = float(np.sqrt(jerk_squares(p, fps, L).mean()))
-    A = joint_angles(p)
+    t = _clip_terms(positions, names, fps, joint_map, contact_height)
+    A = t["angles"]
     anat, anat_exceed = _violations(A, *_anatomical_bounds())
     if reference is None:
         out_of_range, exceed, source = anat, anat_exceed, "anatomical"
@@ -231,9 +243,10 @@ def naturalness_from_positions(positions: np.ndarray, names: Names, fps: float,
         out_of_range, exceed = _violations(A, reference.low - margin, reference.high + margin)
         source = "reference"
     out = {
-        "foot_sliding": float(v[c].mean()) if c.any() else 0.0,
-        "contact_fraction": float(c.mean()),
-        "jerk": jerk,
+        "foot_sliding": float(t["sliding"].mean()) if t["sliding"].size else 0.0,
+        "contact_fraction": float(t["contacts"].mean()),
+        "jerk": float(np.sqrt(t["jerk2"].mean())),
+        "jerk_local": float(np.sqrt(t["jerk2_local"].mean())),
         "joint_limit_violations": float(out_of_range.any(axis=1).mean()),
         "joint_limit_exceedance": exceed,
         "anatomical_violations": float(anat.any(axis=1).mean()),
@@ -243,7 +256,8 @@ def naturalness_from_positions(positions: np.ndarray, names: Names, fps: float,
     }
     if reference is not None:
         out["foot_sliding_ratio"] = out["foot_sliding"] / max(reference.foot_sliding, 1e-300)
-        out["jerk_ratio"] = jerk / max(reference.jerk, 1e-300)
+        out["jerk_ratio"] = out["jerk"] / max(reference.jerk, 1e-300)
+        out["jerk_local_ratio"] = out["jerk_local"] / max(reference.jerk_local, 1e-300)
     return out
 
 
