@@ -11,8 +11,19 @@ XLA's intra-op thread pool: every worker waits in ``BlockingCounter::Wait`` and 
 never returns. We reproduced it here (a gdb stack of the hung fit shows
 ``jax::TriMatrixEquationSolver`` under ``ParallelBatchMap``), so pyproject.toml excludes 0.10.*;
 jaxlib 0.9.x lacks that path.
+
+BLAS threads: JAX's CPU Cholesky and triangular solves call SciPy's OpenBLAS, whose threads
+busy-wait; with the cores shared (XLA's own pool, other processes) the threaded ``potrf`` was
+5-21x slower than one thread on the 2-core target machine (benchmarks/results/blas_threads.json).
+bayesmotion therefore sets ``OPENBLAS_NUM_THREADS=1`` unless the caller set it. It applies when
+SciPy's OpenBLAS is loaded after bayesmotion is imported (the usual case: jaxlib loads it on the
+first factorisation).
 """
 
-import jax
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +39,15 @@ def to_inference_data(post):
     observed = {f"Y_actor{a}": np.asarray(Y) for a, Y in enumerate(post.model.data.Y)}
     for a in range(len(post.model.data.Y)):
         dims[f"Y_actor{a}"] = ["frame", f"pose_dim_actor{a}"]
-    idata = az.from_dict(
+    with warnings.catch_warnings():
+        # emcee runs many walkers (chains) of few draws; arviz warns about that shape
+        warnings.filterwarnings("ignore", message="More chains")
+        idata = _from_dict(az, post, coords, dims, acc, observed)
+    return idata
+
+
+def _from_dict(az, post, coords, dims, acc, observed):
+    return az.from_dict(
         posterior=post.constrained(),
         sample_stats={"lp": post.log_prob, "acceptance_rate": acc},
         observed_data=observed,
@@ -47,7 +56,6 @@ def to_inference_data(post):
         attrs={"sampler": post.method, "inference_library": "bayesmotion",
                "burn": int(post.info.get("burn", 0)), "thin": int(post.info.get("thin", 1))},
     )
-    return idata
 
 
 def save_netcdf(idata, path) -> str:

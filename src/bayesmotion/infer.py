@@ -144,8 +144,12 @@ class EmotionPosterior:
                 post["couple"] = self.couple_samples
                 coords["couple_level"] = list(self.couple_levels)
                 dims["couple"] = ["couple_level"]
-            self._idata = az.from_dict(posterior=post, sample_stats={"lp": self.log_prob},
-                                       coords=coords, dims=dims)
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message="More chains")
+                self._idata = az.from_dict(posterior=post, sample_stats={"lp": self.log_prob},
+                                           coords=coords, dims=dims)
         return self._idata
 
     def __str__(self) -> str:
