@@ -43,3 +43,21 @@ def handshake_model(handshake_data, tmp_path_factory):
     from bayesmotion import HGPDM
 
     return HGPDM().fit(handshake_data, max_iter=300, progress=False)
+
+
+def make_tiny_dataset(fps=5.0):
+    """Test-sized real style difference: the built-in handshakes' happy and sad trials of
+    couple c1 at 5 fps (6 trials x 9 frames)."""
+    import bayesmotion as bm
+
+    ds = bm.load_handshakes(fps=fps).filter(couple="c1", emotion=["happy", "sad"])
+    return bm.MotionDataset(ds.trials, {"emotion": ("happy", "sad"), "couple": ("c1",)})
+
+
+@pytest.fixture(scope="session")
+def tiny_model():
+    """A 6-trial, 54-frame model (latent dims 3) fitted for 60 iterations."""
+    from bayesmotion import HGPDM
+
+    return HGPDM(latent_dim=3, interaction_dim=3).fit(make_tiny_dataset(), max_iter=60,
+                                                      progress=False)

@@ -54,7 +54,7 @@ def test_log_posterior_gradient_matches_finite_differences(fitted):
 
     lp = fitted.log_posterior_fn
     p0 = init_params(fitted.spec, fitted.data)
-    p0["style:emotion"] = np.asarray(simplex_to_style(np.array([[0.7, 0.3], [0.2, 0.8]] * 2)))
+    p0["style:emotion"] = np.asarray(simplex_to_style(np.array([[0.7, 0.3], [0.2, 0.8]])))
     x0, unravel = ravel_pytree({k: jnp.asarray(v) for k, v in p0.items()})
     f = jax.jit(lambda x: lp(unravel(x), 1e-8))
     g = np.asarray(jax.grad(f)(x0))

@@ -17,14 +17,12 @@ def _dims(model) -> tuple[dict, dict]:
         "beta_dim": ["beta1_signal", "beta2_inv_ls", "beta3_noise_prec"],
         "alpha_dim": (["alpha_rbf"] + [f"alpha_ls_lag{l + 1}" for l in range(o)]
                       + [f"alpha_lin_lag{l + 1}" for l in range(o)] + ["alpha_noise_prec"]),
-        "trial": [r.name or f"trial{i}" for i, r in enumerate(model.trials)],
     }
     dims = {"gamma": ["gamma_dim"], "beta": ["beta_dim"], "alpha": ["alpha_dim"]}
     for f in model.spec.factors:
         coords[f"{f}_level"] = list(model.levels[f])
-        dims[f"style_{f}"] = ["trial", f"{f}_level"]
-    if len(set(coords["trial"])) != len(coords["trial"]):
-        coords["trial"] = [f"{i}:{n}" for i, n in enumerate(coords["trial"])]
+        coords[f"{f}_label"] = list(model.levels[f])
+        dims[f"style_{f}"] = [f"{f}_label", f"{f}_level"]  # vector of each label, coordinates
     return coords, dims
 
 

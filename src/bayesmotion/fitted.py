@@ -92,7 +92,7 @@ class FittedHGPDM:
         return {k: np.asarray(v) for k, v in constrained(self.params).items()}
 
     def styles(self) -> dict[str, np.ndarray]:
-        """factor -> (R, K_f) training style vectors."""
+        """factor -> (R, K_f) style vector of every training trial (its level's vector)."""
         return {k: np.asarray(v) for k, v in trial_styles(self.params, self.data).items()}
 
     def trial_slices(self) -> list[slice]:

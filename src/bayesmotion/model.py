@@ -185,11 +185,13 @@ def prepare_data(spec: HGPDM, dataset: MotionDataset, codecs) -> ModelData:
 
 # --------------------------------------------------------------------------- the log-posterior
 def trial_styles(params: dict, data: ModelData) -> dict[str, jnp.ndarray]:
-    """factor -> (R, K_f) style vectors: free ones from params, else the one-hot labels."""
+    """factor -> (R, K_f) style vector of every trial: its level's free vector (params holds
+    one per level, (K_f, K_f - 1) unconstrained) or, when not free, its one-hot label."""
     out = {}
     for f, h in data.onehot.items():
         key = STYLE_PREFIX + f
-        out[f] = style_to_simplex(params[key]) if key in params else jnp.asarray(h)
+        h = jnp.asarray(h)
+        out[f] = h @ style_to_simplex(params[key]) if key in params else h
     return out
 
 

@@ -10,7 +10,7 @@ I             (N, Q_I)            identity                  hierarchy: p(I | alp
 log_gamma     (3,)                gamma = exp(.)            Normal(loc, scale) on log gamma
 log_beta      (3,)                beta = exp(.)             Normal(loc, scale) on log beta
 log_alpha     (2 + 2 o,)          alpha = exp(.)            Normal(loc, scale) on log alpha
-style:<f>     (R, K_f - 1)        simplex (stick-breaking)  Dirichlet(1 + kappa * onehot(label))
+style:<f>     (K_f, K_f - 1)      simplex (stick-breaking)  Dirichlet(1 + kappa * onehot(level))
 ============  ==================  ========================  =====================================
 
 Log-densities are evaluated in the unconstrained space and include the log-det-Jacobian of
@@ -48,8 +48,8 @@ class Priors:
             (signal variance, inverse squared lengthscale, noise precision).
         alpha_rbf, alpha_ls, alpha_lin, alpha_noise: prior medians of the dynamics kernel's
             parameters (the ls/lin medians apply to every lag).
-        style_kappa: Dirichlet concentration added at each trial's labelled level; the prior of a
-            trial's style vector is Dirichlet(1 + kappa * onehot(label)).
+        style_kappa: Dirichlet concentration of each level's style vector around its own
+            vertex: the vector of level k has prior Dirichlet(1 + kappa * onehot(k)).
         init_var: variance of the isotropic Gaussian prior of each trial's first o frames of I.
     """
 
@@ -97,13 +97,18 @@ def style_log_jacobian(u: jnp.ndarray) -> jnp.ndarray:
 
 @dataclass(frozen=True)
 class StylePrior:
-    """Dirichlet prior of each trial's style vector around its label."""
+    """Dirichlet prior of each level's style vector around its own vertex.
 
-    concentration: dict[str, np.ndarray] = field(default_factory=dict)  # factor -> (R, K)
+    As in Wang et al.'s multifactor model there is one style vector per level of a factor
+    (every trial labelled "happy" shares the happy vector); free vectors live on the simplex.
+    """
+
+    concentration: dict[str, np.ndarray] = field(default_factory=dict)  # factor -> (K, K)
 
     @classmethod
     def around_labels(cls, onehots: dict[str, np.ndarray], kappa: float) -> StylePrior:
-        return cls({f: 1.0 + kappa * np.asarray(h) for f, h in onehots.items()})
+        return cls({f: 1.0 + kappa * np.eye(np.asarray(h).shape[1])
+                    for f, h in onehots.items()})
 
 
 def log_prior_hyper(params: dict, priors: Priors, order: int) -> jnp.ndarray:

@@ -1,15 +1,16 @@
 """The Bayesian layer: MCMC over hyperparameters and training style vectors.
 
 Sampled: ``theta = (log gamma, log beta, log alpha, u_f for each style factor f)``, where
-``u_f: (R, K_f - 1)`` maps to each training trial's style vector on the simplex by stick-breaking.
+``u_f: (K_f, K_f - 1)`` maps to one style vector per level on the simplex by stick-breaking (each
+training trial uses the vector of its label, as in Wang et al.'s multifactor model).
 Held at their MAP values: the latents X and I. The target density, in unconstrained space, is
 
     log p(theta | Y, X, I) = sum_a log N(Y_a | 0, K_Y(X_a; gamma))
                              + log N([X_1 X_2] | 0, K_X(I, S; beta))
                              + log N(I_out | 0, K_I(I_in, S; alpha)) + log N(I_first | 0, v0)
                              + sum log Normal(log theta_h | log m_h, sigma)      (hyperparameters)
-                             + sum_r log Dirichlet(s_r | 1 + kappa onehot(label_r))
-                             + sum_r log |det d s_r / d u_r|                      (stick-breaking)
+                             + sum_k log Dirichlet(s_k | 1 + kappa onehot(k))    (each level k)
+                             + sum_k log |det d s_k / d u_k|                      (stick-breaking)
                              + const,
 
 i.e. :class:`bayesmotion.model.LogPosterior` with the latents fixed. emcee receives it jitted
@@ -39,12 +40,15 @@ class ChainTooShortWarning(UserWarning):
 
 
 def sampled_start(model) -> dict:
-    """Initial sampled parameters: MAP hyperparameters, style vectors from the model (or the
-    Dirichlet prior mean around each label when the MAP kept them one-hot)."""
+    """Initial sampled parameters: MAP hyperparameters, style vectors from the model (or each
+    level's Dirichlet prior mean when the MAP kept them one-hot). Factors with a single level
+    have nothing to sample and stay fixed."""
     p = {k: np.asarray(model.params[k]) for k in SAMPLED_HYPER}
     conc = model.log_posterior_fn.style_prior.concentration
     for f in model.spec.factors:
         key = STYLE_PREFIX + f
+        if len(model.levels[f]) < 2:
+            continue
         if key in model.params:
             p[key] = np.asarray(model.params[key])
         else:
@@ -197,7 +201,7 @@ def _constrain(p: dict) -> dict:
     out = {k[4:]: jnp.exp(v) for k, v in p.items() if k.startswith("log_")}
     for k, v in p.items():
         if k.startswith(STYLE_PREFIX):
-            out["style_" + k[len(STYLE_PREFIX):]] = style_to_simplex(v)
+            out["style_" + k[len(STYLE_PREFIX):]] = style_to_simplex(v)  # (K, K)
     return out
 
 

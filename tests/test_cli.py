@@ -1,0 +1,95 @@
+"""Command line: help, bad inputs give one readable line and exit code 2, the demo's files."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from bayesmotion.cli import main
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "bayesmotion", *args], capture_output=True,
+                          text=True, timeout=600)
+
+
+def test_help_lists_commands_and_examples():
+    r = run("--help")
+    assert r.returncode == 0
+    for cmd in ("demo", "fit", "sample", "generate", "infer", "evaluate"):
+        assert cmd in r.stdout
+    r = run("generate", "--help")
+    assert "example: bayesmotion generate" in r.stdout
+
+
+def one_line_error(capsys, argv):
+    code = main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2, err
+    assert err[0].startswith("error: ") and err[1].startswith("hint: ") and len(err) == 2
+    assert "Traceback" not in "\n".join(err)
+    return err[0]
+
+
+def test_bad_inputs_give_one_line_errors(capsys, tmp_path, tiny_model):
+    model = tmp_path / "m.npz"
+    tiny_model.save(model)
+    assert "no such model file" in one_line_error(capsys, ["sample", str(tmp_path / "x.npz"),
+                                                           "--out", str(tmp_path / "p.nc")])
+    junk = tmp_path / "junk.npz"
+    junk.write_text("not a model")
+    assert "not a bayesmotion model" in one_line_error(
+        capsys, ["generate", str(junk), "--out", str(tmp_path)])
+    assert "unknown emotion 'furious'" in one_line_error(
+        capsys, ["generate", str(model), "--emotion", "furious", "--out", str(tmp_path)])
+    assert "no such file" in one_line_error(capsys, ["infer", str(model), "missing.bvh"])
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT Hips\n{\n")
+    assert "line" in one_line_error(capsys, ["infer", str(model), str(bad)])
+    one_bvh = tmp_path / "one.bvh"
+    from bayesmotion import load_cmu_handshake, write_bvh
+
+    write_bvh(load_cmu_handshake().actors[0].select(slice(0, 20)), one_bvh)
+    assert "2 actor" in one_line_error(capsys, ["infer", str(model), str(one_bvh)])
+    assert "no such file or folder" in one_line_error(
+        capsys, ["fit", str(tmp_path / "nowhere"), "--out", str(tmp_path / "m2.npz")])
+    assert "unknown built-in" in one_line_error(
+        capsys, ["fit", "builtin:dances", "--out", str(tmp_path / "m2.npz")])
+
+
+def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
+    model = tmp_path / "m.npz"
+    tiny_model.save(model)
+    assert main(["generate", str(model), "--emotion", "0.5,0.5", "--frames", "12",
+                 "--samples", "1", "--out", str(tmp_path / "gen")]) == 0
+    assert len(list((tmp_path / "gen").glob("*.bvh"))) == 4
+
+
+@pytest.mark.slow
+def test_demo_quick_writes_every_file(tmp_path):
+    out = tmp_path / "demo"
+    r = run("demo", "--quick", "--out", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    for name in ("report.html", "summary.json", "model.npz", "posterior.nc"):
+        assert (out / name).stat().st_size > 0, name
+    assert len(list(out.glob("*.gif"))) == 4
+    assert len(list((out / "bvh").glob("*.bvh"))) == 8
+    s = json.loads((out / "summary.json").read_text())
+    for key in ("fit", "posterior", "generation", "interpolation", "inference"):
+        assert key in s
+    assert {"max_rhat", "min_ess_bulk", "mean_acceptance"} <= set(s["posterior"])
+    assert 0 <= s["inference"]["accuracy"] <= 1
+    assert s["seconds_total"] > 0
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    if chromium is None:
+        pytest.skip("chromium not installed: report rendering not checked")
+    shot = tmp_path / "shot.png"
+    r = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu",
+                        "--disable-background-networking", "--disable-component-update",
+                        "--disable-sync", f"--user-data-dir={tmp_path / 'prof'}",
+                        f"--screenshot={shot}", "--window-size=1200,2000",
+                        (out / "report.html").as_uri()], capture_output=True, text=True,
+                       timeout=120)
+    assert shot.exists() and shot.stat().st_size > 10_000, r.stderr[-1000:]

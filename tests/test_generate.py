@@ -1,0 +1,103 @@
+"""Generation: rollouts, predictive variance, continuous style, BVH export."""
+
+import numpy as np
+import pytest
+
+import bayesmotion as bm
+from bayesmotion.errors import BayesmotionError
+
+
+def test_variance_is_zero_at_the_observed_start_and_grows(tiny_model):
+    r = tiny_model.generate(emotion="happy", n_frames=30, n_samples=64, seed=1)
+    o = tiny_model.spec.order
+    assert np.all(r.I_var[:o] == 0)
+    for space in ("X", "Y", "angles", "positions"):  # (A, T, ...): time is axis 1
+        assert np.all(getattr(r, f"{space}_var")[:, :o] == 0)
+        assert np.all(getattr(r, f"{space}_var")[:, o:].sum() > 0)
+        assert np.all(np.isfinite(getattr(r, space)))
+    assert np.all(r.I_var[o:] > 0)
+    spread = r.sample_var["I"].sum(-1)
+    assert np.all(spread[:o] < 1e-20)  # identical start frames (zero up to rounding)
+    assert spread[-5:].mean() > spread[o]  # the samples' spread grows along the rollout
+
+
+def test_sampled_one_step_matches_the_analytic_predictive(tiny_model):
+    o = tiny_model.spec.order
+    n = 4000
+    r = tiny_model.generate(emotion="sad", n_frames=o + 1, n_samples=n, seed=3)
+    x = r.samples["I"][:, o]  # (n, Q)
+    mean, var = r.I[o], r.I_var[o]
+    se = np.sqrt(var / n)
+    assert np.all(np.abs(x.mean(0) - mean) < 4.5 * se)
+    ratio = x.var(0) / var
+    assert np.all(np.abs(ratio - 1) < 4.5 * np.sqrt(2 / n))
+
+
+def test_bvh_export_reimports_exactly(tiny_model, tmp_path):
+    r = tiny_model.generate(emotion="happy", n_frames=20, n_samples=2)
+    for sample in (None, 1):
+        paths = r.write_bvh(tmp_path, sample=sample)
+        for a, p in enumerate(paths):
+            back = bm.read_bvh(p)
+            np.testing.assert_array_equal(back.values, r.to_motion(sample)[a].values)
+            assert back.fps == r.fps
+
+
+def test_continuous_style_interpolates_and_flags_extrapolation(tiny_model):
+    inside = tiny_model.generate(emotion=[0.5, 0.5], n_frames=10)
+    outside = tiny_model.generate(emotion=[1.3, -0.3], n_frames=10)
+    assert not inside.extrapolated and outside.extrapolated
+    a = tiny_model.generate(emotion="happy", n_frames=10).Y
+    b = tiny_model.generate(emotion="sad", n_frames=10).Y
+    assert not np.allclose(inside.Y, a) and not np.allclose(inside.Y, b)
+    tr = tiny_model.generate(emotion=bm.Transition("happy", "sad", start=3, length=4),
+                             n_frames=10)
+    s = tr.styles["emotion"]
+    np.testing.assert_allclose(s[:3], [[1, 0]] * 3)
+    np.testing.assert_allclose(s[7:], [[0, 1]] * 3)
+    assert np.all(np.diff(s[:, 1]) >= 0)
+
+
+def test_generate_rejects_bad_styles(tiny_model):
+    with pytest.raises(BayesmotionError, match="unknown emotion"):
+        tiny_model.generate(emotion="furious")
+    with pytest.raises(BayesmotionError, match="2 entries"):
+        tiny_model.generate(emotion=[1, 0, 0])
+    with pytest.raises(BayesmotionError, match="start"):
+        tiny_model.generate(emotion="happy", start=np.zeros((5, 5)))
+
+
+@pytest.mark.slow
+def test_mean_rollout_reproduces_training_trial_and_stays_alive(handshake_model,
+                                                                handshake_data):
+    m = handshake_model
+    nrmse = []
+    for r_idx in (0, 5, 10):
+        rec = m.trials[r_idx]
+        roll = m.generate(emotion=rec.labels["emotion"], couple=rec.labels["couple"],
+                          n_frames=rec.n_frames, start=r_idx)
+        Y = np.stack([np.asarray(y)[m.trial_slices()[r_idx]] for y in m.data.Y])
+        nrmse.append(np.sqrt(np.mean((roll.Y - Y) ** 2) / np.mean(Y.var(1))))
+    print("NRMSE of mean rollouts vs their training trials:", np.round(nrmse, 3))
+    assert max(nrmse) < 0.5
+    long = m.generate(emotion="happy", couple="c1", n_frames=1000)
+    assert np.all(np.isfinite(long.positions))
+    train_energy = np.mean([np.mean(np.diff(np.asarray(y), axis=0) ** 2) for y in m.data.Y])
+    late = np.mean(np.diff(long.Y[:, -300:], axis=1) ** 2)
+    print("motion energy, last 300 of 1000 frames / training:", late / train_energy)
+    assert 0.1 < late / train_energy < 10  # neither a fixed point nor an explosion
+    assert np.abs(long.Y).max() < 20 * np.abs(np.concatenate(m.data.Y)).max()
+
+
+@pytest.mark.slow
+def test_generated_handshakes_bring_the_hands_together(handshake_model):
+    real = bm.load_cmu_handshake()
+    from bayesmotion.data.handshakes import hand_distance
+
+    d_real = hand_distance(real).min()
+    for e in handshake_model.levels["emotion"]:
+        r = handshake_model.generate(emotion=e, couple="c1", n_frames=17)
+        j = r.skeletons[0].index("RightHand")
+        d = np.linalg.norm(r.positions[0, :, j] - r.positions[1, :, j], axis=-1).min()
+        print(f"{e}: min right-hand distance {d:.2f} (real {d_real:.2f})")
+        assert d < 1.5 * d_real

@@ -1,0 +1,18 @@
+"""The README's library quick start runs as written."""
+
+import re
+from pathlib import Path
+
+import pytest
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+@pytest.mark.slow
+def test_readme_quick_start_runs(capsys):
+    text = README.read_text()
+    block = re.search(r"## Library quick start\s+```python\n(.*?)```", text, re.S).group(1)
+    assert len(block.strip().splitlines()) <= 16
+    exec(compile(block, "README quick start", "exec"), {})
+    out = capsys.readouterr().out
+    assert "True" in out.splitlines()[-1]  # the inferred label is the trial's label
