@@ -136,8 +136,9 @@ def _cmd_generate(a):
     if a.gif:
         from .animate import animate
 
-        animate(r.to_motion(), out / f"{tag}.gif",
-                spread=None if r.samples is None else r.samples["positions"])
+        spread = None if r.samples is None else [r.samples["positions"][:, k]
+                                                  for k in range(m.n_actors)]
+        animate(r.to_motion(), out / f"{tag}.gif", spread=spread)
     flag = " (extrapolated beyond the simplex)" if r.extrapolated else ""
     print(f"wrote {len(paths)} BVH files to {out}{flag}")
 

@@ -93,7 +93,11 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
                             "burn": post.info["burn"], "thin": post.info["thin"],
                             "max_tau": float(np.max(post.info["tau"])),
                             "warning": post.info.get("warning")}
-    axes = post.plot_trace(var_names=["gamma", "beta", "alpha"])
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="More chains")  # walkers outnumber draws
+        axes = post.plot_trace(var_names=["gamma", "beta", "alpha"])
     fig = np.ravel(axes)[0].figure
     fig.savefig(out / "trace.png", dpi=70)
     plt.close(fig)
@@ -105,8 +109,9 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
                           n_draws=cfg["n_draws"], seed=seed)
         r.write_bvh(out / "bvh", prefix=e)
         gif = out / f"{e}.gif"
+        samples = r.samples["positions"][: 3 * cfg["n_samples"]]  # (S, A, T, J, 3)
         animate(r.to_motion(), gif, stride=cfg["gif_stride"],
-                spread=r.samples["positions"][: 3 * cfg["n_samples"]])
+                spread=[samples[:, a] for a in range(samples.shape[1])])
         gifs.append(gif)
         parts = r.variance_parts["positions"]
         gen[e] = {"position_var_within": float(np.mean(parts["within"])),
