@@ -1,13 +1,14 @@
 """Run the bayesmotion benchmark suite and write benchmarks/results/.
 
-    python benchmarks/run_all.py [--quick] [--only NAME ...] [--blas-threads N]
+    python benchmarks/run_all.py [--quick] [--only NAME ...] [--blas-threads N|inherit]
 
 Every benchmark is a module ``benchmarks/<name>.py`` with ``run(quick: bool) -> dict``. Each one
 runs in its own child process (fresh JAX caches, no interference between benchmarks, a hang or
 crash in one does not stop the others) and its result is written atomically to
 ``results/<name>.json`` together with the machine info (CPU model, cores, versions, date, load)
-and the settings. ``results/README.md`` is then rebuilt from every result file present: a
-markdown table of the headline numbers and their targets.
+and the settings. OpenBLAS runs single-threaded by default (``--blas-threads``; the
+``blas_threads`` benchmark measures the default-thread case). ``results/README.md`` is then
+rebuilt from every result file present: a markdown table of the headline numbers and targets.
 
 Adding a benchmark (e.g. emotion inference seconds per clip, the interpolation study): write
 ``benchmarks/<name>.py`` with ``run(quick) -> dict`` -- put the settings under ``"settings"``
@@ -62,13 +63,13 @@ def run_one(name: str, quick: bool) -> dict:
             "wall_s": time.perf_counter() - t0, "machine": machine, **result}
 
 
-def run_child(name: str, quick: bool, blas_threads: int | None = None) -> dict:
+def run_child(name: str, quick: bool, blas_threads: str = "inherit") -> dict:
     """Run one benchmark in a child process with a timeout; return what it wrote."""
     mode = "quick" if quick else "full"
     cmd = [sys.executable, __file__, "--worker", name] + (["--quick"] if quick else [])
     env = dict(os.environ)
-    if blas_threads is not None:
-        env["OPENBLAS_NUM_THREADS"] = str(blas_threads)
+    if blas_threads != "inherit":
+        env["OPENBLAS_NUM_THREADS"] = blas_threads
     path = RESULTS / f"{name}.json"
     t0, started = time.perf_counter(), time.time()
     try:
@@ -111,10 +112,13 @@ def readme(results: dict[str, dict]) -> str:
         lines.append(f"Machine: {cpu}, {cores} cores.")
     any_r = next(iter(results.values()), {})
     m = any_r.get("machine", {})
+    blas = sorted({str(r.get("machine", {}).get("thread_env", {}).get("OPENBLAS_NUM_THREADS"))
+                   for r in results.values()})
     lines += [f"Python {m.get('python', '?')}, jax {m.get('jax', '?')}, numpy "
-              f"{m.get('numpy', '?')}; float64 on CPU. Timings are wall-clock medians after "
-              "warm-up; other processes may share the cores (each JSON records the load "
-              "average at start and end).", "",
+              f"{m.get('numpy', '?')}; float64 on CPU; OPENBLAS_NUM_THREADS={'/'.join(blas)} "
+              "(None = OpenBLAS default; blas_threads compares both). Timings are wall-clock "
+              "medians after warm-up; other processes may share the cores (each JSON records "
+              "the load average at start and end).", "",
               "| benchmark | mode | metric | value | unit | target | met | note |",
               "|---|---|---|---|---|---|---|---|"]
     for name, r in results.items():
@@ -127,8 +131,13 @@ def readme(results: dict[str, dict]) -> str:
             met = {True: "met", False: "**not met**", None: ""}[h.get("met")]
             label = f"{name} ({date})" if i == 0 else ""
             note = str(h.get("note", "")).replace("|", "/")
-            lines.append(f"| {label} | {mode} | {h['metric'].strip()} | {_fmt(h['value'])} | "
+            metric = h["metric"].strip().replace("|", "\\|")
+            lines.append(f"| {label} | {mode} | {metric} | {_fmt(h['value'])} | "
                          f"{h.get('unit', '')} | {h.get('target', '')} | {met} | {note} |")
+    loads = [f"{n} {r['machine'].get('load_average_at_start', ['?'])[0]}"
+             for n, r in results.items() if "machine" in r]
+    lines += ["", "1-minute load average at each benchmark's start (2 cores): "
+              + ", ".join(loads) + "."]
     quick = [n for n, r in results.items() if r.get("mode") == "quick"]
     if quick:
         lines += ["", f"**Quick mode** ({', '.join(quick)}): small sizes and capped iterations "
@@ -151,9 +160,13 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="small sizes, a few minutes in all")
     ap.add_argument("--only", nargs="+", choices=BENCHMARKS, metavar="NAME",
                     help=f"run only these ({', '.join(BENCHMARKS)})")
-    ap.add_argument("--blas-threads", type=int, metavar="N",
-                    help="set OPENBLAS_NUM_THREADS=N for the benchmarks (default: inherit; "
-                         "recorded in each JSON's machine.thread_env)")
+    ap.add_argument("--blas-threads", default="1", metavar="N",
+                    help="OPENBLAS_NUM_THREADS for the benchmarks (default 1: threaded OpenBLAS "
+                         "inside XLA's own thread pool oversubscribes the cores, see the "
+                         "blas_threads benchmark; 'inherit' leaves the environment alone); "
+                         "recorded in each JSON's machine.thread_env")
+    ap.add_argument("--readme", action="store_true",
+                    help="only rebuild results/README.md from the JSON files")
     ap.add_argument("--worker", choices=BENCHMARKS, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
@@ -161,6 +174,9 @@ def main(argv=None) -> int:
         os.environ.setdefault("TQDM_DISABLE", "1")
         res = run_one(a.worker, a.quick)
         write_json(RESULTS / f"{a.worker}.json", res)  # an error is recorded in the JSON
+        return 0
+    if a.readme:
+        write_readme()
         return 0
     failed = []
     for name in a.only or BENCHMARKS:
@@ -172,7 +188,7 @@ def main(argv=None) -> int:
         if res["status"] != "ok":
             failed.append(name)
             print(f"    {res.get('error')}", flush=True)
-    write_readme()
+        write_readme()  # after each benchmark, so a stopped run still leaves a consistent table
     print(f"wrote {RESULTS}/README.md")
     return 1 if failed else 0
 
