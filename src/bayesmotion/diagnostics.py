@@ -72,6 +72,16 @@ def save_netcdf(idata, path) -> str:
     return str(path)
 
 
+def _theta(x):
+    """arviz Dataset of (chains, draws, ndim) draws; emcee has more walkers than draws, a shape
+    arviz warns about, so that one warning is silenced here."""
+    import arviz as az
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="More chains")
+        return az.convert_to_dataset({"theta": np.asarray(x)})
+
+
 def compare_posteriors(a, b, var_names=None) -> dict:
     """Compare two posteriors of the same target (e.g. emcee vs NUTS).
 
@@ -86,7 +96,7 @@ def compare_posteriors(a, b, var_names=None) -> dict:
 
     def ds(post, n=None):
         x = post.chains if n is None else post.chains[:, -n:]
-        return az.convert_to_dataset({"theta": x}), x
+        return _theta(x), x
 
     n = min(a.chains.shape[1], b.chains.shape[1])
     da, xa = ds(a)
@@ -96,7 +106,7 @@ def compare_posteriors(a, b, var_names=None) -> dict:
     se_b = az.mcse(db)["theta"].values
     z = (mean_a - mean_b) / np.sqrt(se_a**2 + se_b**2)
     pooled = np.concatenate([a.chains[:, -n:], b.chains[:, -n:]])
-    rhat = az.rhat(az.convert_to_dataset({"theta": pooled}))["theta"].values
+    rhat = az.rhat(_theta(pooled))["theta"].values
     return {"names": a.target.names, "mean_a": mean_a, "mean_b": mean_b, "mcse_a": se_a,
             "mcse_b": se_b, "z": z, "rhat": rhat, "max_abs_z": float(np.max(np.abs(z))),
             "max_rhat": float(np.max(rhat))}
@@ -106,7 +116,7 @@ def convergence(post) -> dict:
     """max R-hat, min bulk and tail ESS over all sampled coordinates (unconstrained)."""
     import arviz as az
 
-    d = az.convert_to_dataset({"theta": post.chains})
+    d = _theta(post.chains)
     return {"max_rhat": float(az.rhat(d)["theta"].max()),
             "min_ess_bulk": float(az.ess(d, method="bulk")["theta"].min()),
             "min_ess_tail": float(az.ess(d, method="tail")["theta"].min()),
