@@ -79,16 +79,23 @@ RESUME_SCRIPT = textwrap.dedent("""
 
 
 @pytest.mark.slow
-def test_killed_run_resumes_from_hdf5_without_losing_samples(tiny_model, tmp_path):
+def test_killed_run_resumes_from_hdf5_without_losing_samples(tiny_model, tmp_path,
+                                                            monkeypatch):
+    import os
+
     import emcee
 
+    # the test polls the file while the child writes it: without this, the reader's HDF5 lock
+    # makes the writer fail (BlockingIOError) instead of being killed
+    monkeypatch.setenv("HDF5_USE_FILE_LOCKING", "FALSE")
     model_path = tmp_path / "m.npz"
     tiny_model.save(model_path)
     script = tmp_path / "run.py"
     script.write_text(RESUME_SCRIPT)
     h5 = tmp_path / "chain.h5"
     n = 400
-    proc = subprocess.Popen([sys.executable, str(script), str(model_path), str(h5), str(n)])
+    proc = subprocess.Popen([sys.executable, str(script), str(model_path), str(h5), str(n)],
+                            env=dict(os.environ))
     deadline = time.time() + 600
     done_before = 0
     while time.time() < deadline and proc.poll() is None:
@@ -102,6 +109,7 @@ def test_killed_run_resumes_from_hdf5_without_losing_samples(tiny_model, tmp_pat
                 proc.kill()
                 break
     proc.wait()
+    assert proc.returncode != 0 and proc.returncode == -9, "the child must die by our SIGKILL"
     assert 0 < done_before < n, "the run should have been killed part-way"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
