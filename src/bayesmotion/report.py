@@ -36,6 +36,7 @@ def write_report(path: Path, title: str, sections: list[tuple[str, list]], summa
         parts.append(f"<h2>{html.escape(heading)}</h2>")
         for it in items:
             parts.append(_img(it, it.stem) if isinstance(it, Path) else it)
-    parts.append("<h2>summary.json</h2><pre>" + html.escape(json.dumps(summary, indent=1))
+    text = json.dumps(summary, indent=1, default=float)
+    parts.append("<h2>summary.json</h2><pre>" + html.escape(text)
                  + "</pre></body></html>")
     atomic_write_text(path, "\n".join(parts))
