@@ -87,12 +87,14 @@ def run_loop(post, n_steps: int) -> dict:
     target = post.target
     W, ndim = post.info["n_walkers"], target.ndim
     centre, _ = target.conditional_map(progress=False)
-    p0 = centre + 1e-3 * np.random.default_rng(0).standard_normal((W, ndim))
+    from bayesmotion.posterior import _start_points
+
+    p0 = _start_points(target, centre, W, "laplace", 1e-3, np.random.default_rng(0))
 
     def log_prob(x):
         return float(target.logp(jnp.asarray(x)))
 
-    moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+    moves = emcee.moves.DEMove()  # bayesmotion's default (emcee's snooker move is biased)
     sampler = emcee.EnsembleSampler(W, ndim, log_prob, vectorize=False, moves=moves)
     state = emcee.State(p0, random_state=np.random.RandomState(0).get_state())
     t0 = time.perf_counter()
