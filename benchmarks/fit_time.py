@@ -1,6 +1,6 @@
 """Full H-GPDM MAP fit time: the built-in handshakes and a Taubert-size problem.
 
-1. ``HGPDM().fit(load_handshakes(), progress=False)`` with default settings (target < 5 min).
+1. ``HGPDM().fit(load_handshakes())`` with default settings (target < 5 min).
 2. Taubert-size: 12 two-actor trials of 100 frames, 4 emotions x 3 repetitions of couple "c1",
    D = 159 per actor. Built from the shipped CMU handshake by ``load_handshakes(fps=...,
    window="shake")`` (the real recording with the emotion transforms) at the lowest frame rate
@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -66,17 +67,22 @@ def eval_cost(spec, data) -> dict:
             "compile_s_estimate": max(first - t["median_s"], 0.0)}
 
 
-def fit_builtin(max_iter: int) -> dict:
+def fit_builtin(max_iter: int, cost_path: Path) -> dict:
+    from _common import write_json
+
     from bayesmotion.datasets import load_handshakes
     from bayesmotion.model import HGPDM, fit_codecs, prepare_data
 
+    ds = load_handshakes()
+    spec = HGPDM().resolved(ds)
+    cost = eval_cost(spec, prepare_data(spec, ds, fit_codecs(spec, ds)))
+    write_json(cost_path, cost)  # kept by the parent if the fit then times out
     t0 = time.perf_counter()
     ds = load_handshakes()
-    fitted = HGPDM().fit(ds, max_iter=max_iter, progress=False)
+    fitted = HGPDM().fit(ds, max_iter=max_iter, progress=True)  # the bar shows how far it got
     wall = time.perf_counter() - t0
     out = _summary(fitted.diagnostics, wall)
-    spec = HGPDM().resolved(ds)
-    out["evaluation_cost"] = eval_cost(spec, prepare_data(spec, ds, fit_codecs(spec, ds)))
+    out["evaluation_cost"] = cost
     out["data"] = {"trials": len(ds), "frames_per_trial": ds[0].n_frames, "fps": ds.fps,
                    "N": int(fitted.data.lengths.sum()),
                    "D_per_actor": [int(y.shape[1]) for y in fitted.data.Y]}
@@ -117,18 +123,23 @@ def taubert_data():
     return spec, ds, data, d_real
 
 
-def fit_taubert(max_iter: int) -> dict:
+def fit_taubert(max_iter: int, cost_path: Path) -> dict:
+    from _common import write_json
+
     from bayesmotion.model import LogPosterior, init_params
     from bayesmotion.optim import map_optimize
 
+    spec, ds, data, d_real = taubert_data()
+    cost = eval_cost(spec, data)
+    write_json(cost_path, cost)
     t0 = time.perf_counter()
     spec, ds, data, d_real = taubert_data()
     logp = LogPosterior(spec, data)
     params, diag = map_optimize(logp, init_params(spec, data, 0), max_iter=max_iter,
-                                progress=False, desc="Taubert-size fit")
+                                progress=True, desc="Taubert-size fit")
     wall = time.perf_counter() - t0
     out = _summary(diag, wall)
-    out["evaluation_cost"] = eval_cost(spec, data)
+    out["evaluation_cost"] = cost
     out["data"] = {"trials": len(ds), "frames_per_trial": sorted({t.n_frames for t in ds}),
                    "fps": ds.fps, "N": int(data.lengths.sum()),
                    "emotions": sorted(set(ds.labels("emotion"))),
@@ -146,13 +157,31 @@ def run_part(part: str, max_iter: int, timeout: float | None) -> dict:
         out = Path(tmp) / "out.json"
         cmd = [sys.executable, __file__, "--part", part, "--max-iter", str(max_iter),
                "--out", str(out)]
+        cost = out.with_suffix(".cost.json")
+        env = {k: v for k, v in os.environ.items() if k != "TQDM_DISABLE"}
         t0 = time.perf_counter()
         try:
-            subprocess.run(cmd, check=True, capture_output=True, timeout=timeout)
-        except subprocess.TimeoutExpired:
-            return {"timed_out": True, "timeout_s": timeout, "seconds": None,
-                    "wall_s": time.perf_counter() - t0, "converged": False}
+            subprocess.run(cmd, check=True, capture_output=True, timeout=timeout, text=True,
+                           env=env)
+        except subprocess.TimeoutExpired as e:
+            res = {"timed_out": True, "timeout_s": timeout, "seconds": None,
+                   "wall_s": time.perf_counter() - t0, "converged": False,
+                   **progress_so_far(e.stderr)}
+            if cost.exists():
+                res["evaluation_cost"] = json.loads(cost.read_text())
+            return res
         return {"timed_out": False, **json.loads(out.read_text())}
+
+
+def progress_so_far(stderr) -> dict:
+    """Iterations done and last objective from the fit's progress bar (tqdm on stderr)."""
+    import re
+
+    text = stderr.decode(errors="replace") if isinstance(stderr, bytes) else (stderr or "")
+    its = re.findall(r"(\d+)/(\d+) \[", text)
+    obj = re.findall(r"objective=([-+0-9.eE]+)", text)
+    return {"iterations_before_timeout": int(its[-1][0]) if its else None,
+            "objective_before_timeout": float(obj[-1]) if obj else None}
 
 
 def run(quick: bool) -> dict:
@@ -166,7 +195,8 @@ def run(quick: bool) -> dict:
     def row(label, r, target):
         if r["timed_out"]:
             return headline(label, None, "s", f"< {target:g} s", False,
-                            f"not finished after {r['timeout_s']:.0f} s (stopped)")
+                            f"not finished after {r['timeout_s']:.0f} s (stopped at iteration "
+                            f"{r.get('iterations_before_timeout')} of {max_iter})")
         met = None if quick else r["seconds"] < target
         return headline(label, r["seconds"], "s", f"< {target:g} s", met,
                         note or f"{r['iterations']} it, converged={r['converged']}, "
@@ -174,9 +204,12 @@ def run(quick: bool) -> dict:
 
     def per_eval(label, r):
         c = r.get("evaluation_cost", {})
-        return headline(label, c.get("value_grad_s"), "s",
-                        note=f"JIT compile ~{c['compile_s_estimate']:.0f} s; "
-                             f"{r['evaluations']} evaluations in the fit" if c else "timed out")
+        if not c:
+            return headline(label, None, "s", note="not measured")
+        done = (f"{r['evaluations']} evaluations in the fit" if not r["timed_out"] else
+                f"fit stopped at iteration {r.get('iterations_before_timeout')}")
+        return headline(label, c["value_grad_s"], "s",
+                        note=f"JIT compile ~{c['compile_s_estimate']:.0f} s; {done}")
 
     nb = b.get("data", {}).get("N", "?")
     nt = t.get("data", {}).get("N", "?")
@@ -210,4 +243,5 @@ if __name__ == "__main__":
     import bayesmotion  # noqa: F401  (float64)
 
     fn = fit_builtin if a.part == "builtin" else fit_taubert
-    write_json(Path(a.out), fn(a.max_iter))
+    out = Path(a.out)
+    write_json(out, fn(a.max_iter, out.with_suffix(".cost.json")))

@@ -419,8 +419,14 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
     model = fit_hgpdm(train, cfg)
     t_fit = time.perf_counter() - t_fit
     cache: dict = {}
-    pairs = [study_pair(data, c, e, model, train, reference, cfg, cache)
-             for c in cfg.contents for e in cfg.emotions]
+    pairs = []
+    for c in cfg.contents:
+        for e in cfg.emotions:
+            t_pair = time.perf_counter()
+            pairs.append(study_pair(data, c, e, model, train, reference, cfg, cache))
+            pairs[-1]["seconds"] = time.perf_counter() - t_pair
+            print(f"[{NAME}] {c} neutral -> {e}: {pairs[-1]['seconds']:.0f} s", file=sys.stderr,
+                  flush=True)
     summary = aggregate(pairs)
     result = {
         **base,

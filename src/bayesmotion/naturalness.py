@@ -34,8 +34,8 @@ gate the height threshold must be tighter than that module's 0.1 L: a swinging t
 floor by only 0.05-0.15 L in the Bandai walks, so the default is ``CONTACT_HEIGHT`` = 0.03 L
 (about 2.5 cm). The contact point is whichever of ankle and toe is nearer its own floor height
 in that frame (the heel at heel strike, the toe at push-off), and sliding is that joint's
-horizontal speed. Real walks score 0.2-0.7 L/s, mostly from the frames around heel strike and
-toe-off, so compare motions through ``foot_sliding_ratio``.
+horizontal speed. Real walks score 0.2-0.9 L/s (30 fps), mostly from the frames around heel
+strike and toe-off, so compare motions through ``foot_sliding_ratio``.
 
 **Joint angles** (``ANGLE_NAMES``) come from positions, so they do not depend on the skeleton's
 Euler conventions and are invariant to translation, rotation and uniform scale:
