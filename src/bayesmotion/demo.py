@@ -71,6 +71,15 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     train, held = _split(ds)
     summary["data"] = {"trials": len(ds), "train": len(train), "held_out": len(held),
                        "frames_per_trial": ds[0].n_frames, "fps": cfg["fps"]}
+    stages: dict = {}
+    t_stage = time.perf_counter()
+
+    def stage(name):  # wall seconds of each step of the demo, in summary["stage_seconds"]
+        nonlocal t_stage
+        now = time.perf_counter()
+        stages[name] = round(now - t_stage, 2)
+        t_stage = now
+
     # 1. MAP fit
     model = HGPDM().fit(train, max_iter=cfg["max_iter"], seed=seed)
     model.save(out / "model.npz")
@@ -83,6 +92,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     fig.tight_layout()
     fig.savefig(out / "fit_trace.png", dpi=90)
     plt.close(fig)
+    stage("fit")
     # 2. posterior
     t0 = time.perf_counter()
     post = sample_posterior(model, n_steps=cfg["n_steps"], seed=seed)
@@ -101,6 +111,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     fig = np.ravel(axes)[0].figure
     fig.savefig(out / "trace.png", dpi=70)
     plt.close(fig)
+    stage("posterior")
     # 3. posterior-predictive handshakes
     T = ds[0].n_frames
     gifs, gen = [], {}
@@ -118,6 +129,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
                   "position_var_between": float(np.mean(parts["between"])),
                   "min_hand_distance": _hand_distance(r)}
     summary["generation"] = gen
+    stage("generation")
     # 4. interpolation series neutral -> happy, inferred back
     levels = list(model.levels["emotion"])
     interp = []
@@ -139,6 +151,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     fig.tight_layout()
     fig.savefig(out / "interpolation.png", dpi=90)
     plt.close(fig)
+    stage("interpolation")
     # 5. inference on held-out trials
     rows, true, pred, cover = [], [], [], []
     for trial in held:
@@ -159,6 +172,8 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
         "confusion_percent": C.tolist(), "levels": levels,
         "interval90_covers_truth": float(np.mean([r[-1] for r in rows])),
         "position_coverage": {q: float(np.mean([c[q] for c in cover])) for q in ("0.5", "0.9")}}
+    stage("inference")
+    summary["stage_seconds"] = stages
     summary["seconds_total"] = time.perf_counter() - t_all
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
     sections = [
