@@ -61,3 +61,17 @@ def test_array_clips_are_checked(tiny_model):
         bm.infer_emotion(tiny_model, np.zeros((2, 10, 3)))
     with pytest.raises(bm.BayesmotionError, match="more than"):
         bm.infer_emotion(tiny_model, np.stack([np.asarray(y)[:2] for y in tiny_model.data.Y]))
+
+
+@pytest.mark.slow
+def test_unknown_couple_is_inferred_with_the_emotion(handshake_model, handshake_data):
+    # From the prior-mean start alone the projection explained the neutral c1 trial as angry
+    # (P = 0.75) with the wrong couple; one start per couple level finds the right optimum.
+    ds = handshake_data
+    for emotion, couple in [("neutral", "c1"), ("happy", "c2")]:
+        trial = ds.filter(emotion=emotion, couple=couple, repetition="0")[0]
+        ep = bm.infer_emotion(handshake_model, trial, n_steps=200, latent_uncertainty=False)
+        assert ep.couple_levels == tuple(handshake_model.levels["couple"])
+        couple_mean = ep.couple_samples.reshape(-1, len(ep.couple_levels)).mean(0)
+        assert ep.couple_levels[int(np.argmax(couple_mean))] == couple
+        assert ep.label == emotion, str(ep)

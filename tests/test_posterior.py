@@ -157,7 +157,7 @@ def test_emcee_and_nuts_agree_on_a_small_model(tiny_model):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
         e = bm.sample_posterior(tiny_model, n_steps=2500, progress=False, seed=0)
-        n = bm.sample_posterior(tiny_model, n_steps=600, method="nuts", n_chains=2,
+        n = bm.sample_posterior(tiny_model, n_steps=400, method="nuts", n_chains=2,
                                 progress=False, seed=1)
     cmp = compare_posteriors(e, n)
     print("emcee vs NUTS: max |z| =", cmp["max_abs_z"], "max pooled R-hat =", cmp["max_rhat"])

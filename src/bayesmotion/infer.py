@@ -4,7 +4,8 @@
    skeleton by joint names, resampled to the model's frame rate and encoded.
 2. Projection: the latents X*, I* and the clip's style vectors are found jointly by MAP
    (L-BFGS) of the clip's predictive log-density (bayesmotion.infer_density) with the model
-   fixed, starting from the latents of the nearest training frames and the prior-mean style.
+   fixed, starting from the latents of the nearest training frames and the prior-mean style
+   (when the couple is inferred: one start per couple level, the best optimum kept).
    Latent uncertainty: a diagonal Laplace approximation (Hutchinson estimate of diag H).
 3. Style posterior: emcee samples the clip's emotion coordinates (and its couple style when not
    given) on the simplex, with the latents held at their MAP -- i.e. the conditional posterior
@@ -220,6 +221,25 @@ def _lbfgs(params, args, statics, max_iter):
     return unravel(jnp.asarray(res.x)), res
 
 
+def _project(params, args, statics, max_iter, inferred, conc):
+    """MAP projection. When the couple is inferred too, one start per couple level (its
+    style vector near that level's vertex) and the best optimum is kept: from the prior mean
+    the latents can settle in an optimum that explains the clip with the wrong couple *and*
+    the wrong emotion (a neutral c1 training trial came out angry, P = 0.75, from one start)."""
+    if "couple" not in inferred:
+        return _lbfgs(params, args, statics, max_iter)
+    K = conc["couple"].size
+    best = None
+    for k in range(K):
+        v = np.full(K, 0.1 / max(K - 1, 1))
+        v[k] = 0.9
+        start = {**params, "u:couple": simplex_to_style(jnp.asarray(v)[None])[0]}
+        out = _lbfgs(start, args, statics, max_iter)
+        if best is None or out[1].fun < best[1].fun:
+            best = out
+    return best
+
+
 def infer_emotion(model, clip, *, frames=None, couple=None, prior=None, method: str = "emcee",
                   seed: int = 0, n_walkers: int = 16, n_steps: int = 600, n_draws: int = 4,
                   max_iter: int = 200, latent_uncertainty: bool = True) -> EmotionPosterior:
@@ -280,7 +300,7 @@ def _infer_one(model, P, clip, frames, couple, prior, seed, n_walkers, n_steps, 
     fixed_j = {k: jnp.asarray(v) for k, v in fixed.items()}
     conc_j = {k: jnp.asarray(v) for k, v in conc.items()}
     args = (P, Yp, mask, fixed_j, conc_j)
-    params, res = _lbfgs(params, args, statics, max_iter)
+    params, res = _project(params, args, statics, max_iter, inferred, conc)
     latents = {"X": params["X"], "I": params["I"]}
     sd = {}
     if latent_uncertainty:
