@@ -1,8 +1,13 @@
 """Shared fixtures: paths to the real motion-capture sets beside the checkout."""
 
+import os
 from pathlib import Path
 
 import pytest
+
+# Two pytest-xdist workers share one machine: on a GPU, JAX must not grab 75% of its memory
+# in each of them.
+os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CMU_DIR = SHARED / "cmu-handshake"

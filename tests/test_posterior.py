@@ -163,11 +163,12 @@ def test_emcee_and_nuts_agree_on_a_small_model(tiny_model):
     print("emcee vs NUTS: max |z| =", cmp["max_abs_z"], "max pooled R-hat =", cmp["max_rhat"])
     print("emcee:", convergence(e), "NUTS:", convergence(n))
     assert cmp["max_abs_z"] < 3.5  # means within ~3 MCSE (over ~16 coordinates)
-    # spreads: with a few hundred effective draws an sd is known to a few percent; emcee's
-    # biased snooker move gave ratios 0.6-0.7 here (log alpha_1, the style coordinates)
-    ratio = e.chains.std((0, 1)) / n.chains.std((0, 1))
-    print("sd ratio emcee / NUTS:", np.round(ratio, 2))
-    assert np.all((ratio > 0.75) & (ratio < 1.33))
+    # spreads, in units of their Monte-Carlo errors (tail-heavy coordinates such as log alpha_1
+    # have sds known only to ~10%); emcee's biased snooker move gave sd ratios 0.6-0.7 on the
+    # style coordinates, |z_sd| > 5
+    print("sd ratio emcee / NUTS:", np.round(cmp["sd_a"] / cmp["sd_b"], 2),
+          "max |z_sd| =", cmp["max_abs_z_sd"])
+    assert cmp["max_abs_z_sd"] < 3.5
 
 
 @pytest.mark.slow

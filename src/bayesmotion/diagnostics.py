@@ -85,12 +85,13 @@ def _theta(x):
 def compare_posteriors(a, b, var_names=None) -> dict:
     """Compare two posteriors of the same target (e.g. emcee vs NUTS).
 
-    For every unconstrained coordinate: both means, their Monte-Carlo standard errors (arviz
-    ``mcse``), the z-score of the difference, and the R-hat of the pooled chains of both
-    methods (draws truncated to the shorter run).
+    For every unconstrained coordinate: both means and both standard deviations, their
+    Monte-Carlo standard errors (arviz ``mcse``, methods "mean" and "sd"), the z-scores of the
+    differences, and the R-hat of the pooled chains of both methods (draws truncated to the
+    shorter run).
 
     Returns:
-        dict with per-coordinate arrays and ``max_abs_z``, ``max_rhat``.
+        dict with per-coordinate arrays and ``max_abs_z``, ``max_abs_z_sd``, ``max_rhat``.
     """
     import arviz as az
 
@@ -105,10 +106,16 @@ def compare_posteriors(a, b, var_names=None) -> dict:
     se_a = az.mcse(da)["theta"].values
     se_b = az.mcse(db)["theta"].values
     z = (mean_a - mean_b) / np.sqrt(se_a**2 + se_b**2)
+    sd_a, sd_b = xa.std((0, 1)), xb.std((0, 1))
+    sse_a = az.mcse(da, method="sd")["theta"].values
+    sse_b = az.mcse(db, method="sd")["theta"].values
+    z_sd = (sd_a - sd_b) / np.sqrt(sse_a**2 + sse_b**2)
     pooled = np.concatenate([a.chains[:, -n:], b.chains[:, -n:]])
     rhat = az.rhat(_theta(pooled))["theta"].values
     return {"names": a.target.names, "mean_a": mean_a, "mean_b": mean_b, "mcse_a": se_a,
-            "mcse_b": se_b, "z": z, "rhat": rhat, "max_abs_z": float(np.max(np.abs(z))),
+            "mcse_b": se_b, "z": z, "sd_a": sd_a, "sd_b": sd_b, "mcse_sd_a": sse_a,
+            "mcse_sd_b": sse_b, "z_sd": z_sd, "rhat": rhat,
+            "max_abs_z": float(np.max(np.abs(z))), "max_abs_z_sd": float(np.max(np.abs(z_sd))),
             "max_rhat": float(np.max(rhat))}
 
 
