@@ -30,7 +30,8 @@ class GaussianTarget:
 def test_emcee_wrapper_recovers_known_mean_and_variance():
     mu, sd = np.array([1.0, -2.0, 0.5]), np.array([0.5, 2.0, 1.0])
     post = _run_emcee(GaussianTarget(mu, sd), mu, n_walkers=32, n_steps=3000, burn=None,
-                      thin=None, seed=1, backend=None, progress=False, init="ball", ball=1e-2, moves=None)
+                      thin=None, seed=1, backend=None, progress=False, init="ball", ball=1e-2,
+                      moves=None)
     x = post.chains.reshape(-1, 3)
     tau = post.info["tau"]
     n_eff = x.shape[0] * post.info["thin"] / tau.max()
