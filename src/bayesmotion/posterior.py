@@ -99,11 +99,10 @@ class Target:
         x, _ = ravel_pytree({k: jnp.asarray(v) for k, v in params.items()})
         return np.asarray(x), diag
 
-
     def laplace(self, centre) -> np.ndarray:
         """Covariance of the Laplace approximation at ``centre``: the inverse Hessian of the
         negative log-density, by central differences of the JAX gradient (step 1e-4; compiling
-        ``jax.hessian`` through the Cholesky factors took 15 s at N = 340, the differences 3 s).
+        ``jax.hessian`` through the Cholesky factors took 15 s at N = 340, the differences 7 s).
         Directions where the Hessian is not positive definite (a saddle or a flat ridge) get the
         prior's variance, 9 in log units."""
         grad = jax.jit(jax.grad(lambda x: -self._logp(x)))
@@ -303,7 +302,7 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
         return np.asarray(target.logp_batch(jnp.asarray(xs)), dtype=np.float64)
 
     be = None
-    start, todo = True, n_steps
+    resume, todo = False, n_steps
     if backend is not None:
         be = emcee.backends.HDFBackend(str(backend))
         if be.initialized and be.iteration > 0:
@@ -311,11 +310,9 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
             if shape != (W, ndim):
                 raise BayesmotionError(f"backend {backend} holds a run of shape {shape}, this "
                                        f"run needs {(W, ndim)}; use another file")
-            start, todo = None, max(0, n_steps - be.iteration)
+            resume, todo = True, max(0, n_steps - be.iteration)
         else:
             be.reset(W, ndim)
-    if start is not None:
-        start = _start_points(target, centre, W, init, ball, np.random.default_rng(seed))
     if moves is None:
         # Not DESnookerMove: emcee 3.1.6's snooker move does not leave the target invariant
         # (its projection divides by sqrt(|z - x|) instead of |z - x|); on 14 iid logit-Beta(11, 1)
@@ -325,9 +322,10 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
     sampler = emcee.EnsembleSampler(W, ndim, log_prob, vectorize=True, backend=be, moves=moves)
     t0 = time.perf_counter()
     if todo:
-        if start is None:
+        if resume:
             sampler.run_mcmc(None, todo, progress=progress)
         else:  # seeded: emcee keeps its generator state in the State (and the backend)
+            start = _start_points(target, centre, W, init, ball, np.random.default_rng(seed))
             state = emcee.State(start, random_state=np.random.RandomState(seed).get_state())
             sampler.run_mcmc(state, todo, progress=progress)
     seconds = time.perf_counter() - t0
