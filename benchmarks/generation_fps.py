@@ -66,11 +66,11 @@ def profile_parts(model, P, T: int, repeats: int) -> dict:
     from bayesmotion.generate import (
         _fk_and_jacobian,
         _positions_with_var,
-        condition,
         decode_actor,
         dynamics_rollout,
         map_down,
     )
+    from bayesmotion.predict import condition
 
     r, I0, dyn_s, int_s = _inputs(model, T)
     o, A = model.spec.order, model.n_actors

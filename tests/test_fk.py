@@ -104,3 +104,23 @@ def test_jax_fk_pads_frames_to_buckets_without_changing_results():
         np.testing.assert_allclose(np.asarray(forward_kinematics(sk, v[:n])), full[:n],
                                    atol=1e-12)
     assert f._cache_size() - before <= 1
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_analytic_position_variance_equals_the_jacfwd_propagation(seed):
+    import jax
+    import jax.numpy as jnp
+
+    from bayesmotion.data.fk import fk_function, fk_variance_function
+
+    rng = np.random.default_rng(seed)
+    sk = random_skeleton(rng, J=9)
+    values = jnp.asarray(rng.uniform(-180, 180, size=(6, sk.n_channels)))
+    var = jnp.asarray(rng.uniform(0.0, 4.0, size=values.shape))
+    off = jnp.asarray(sk.offsets)
+    jac = jax.vmap(jax.jacfwd(fk_function(sk)), in_axes=(0, None))(values, off)  # (T, J, 3, C)
+    expected = np.einsum("tjkc,tc->tjk", np.asarray(jac) ** 2, np.asarray(var))
+    pos, got = jax.jit(fk_variance_function(sk))(values, var, off)
+    np.testing.assert_allclose(np.asarray(pos), reference_fk(sk, np.asarray(values)), atol=1e-10)
+    np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-10, atol=1e-12)
+    assert np.all(np.asarray(got)[:, 0] > 0)  # the root moves with its position channels

@@ -101,3 +101,27 @@ def test_generated_handshakes_bring_the_hands_together(handshake_model):
         d = np.linalg.norm(r.positions[0, :, j] - r.positions[1, :, j], axis=-1).min()
         print(f"{e}: min right-hand distance {d:.2f} (real {d_real:.2f})")
         assert d < 1.5 * d_real
+
+
+def test_mean_rollout_variance_equals_the_per_step_predictive(tiny_model):
+    """The mean rollout computes its one-step variances after the scan, in one batch; they must
+    equal each step's predictive variance at the lags it actually used."""
+    import jax.numpy as jnp
+
+    from bayesmotion.predict import noise_variances, predict_dynamics
+
+    r = tiny_model.generate(emotion="sad", n_frames=25)
+    P, o = tiny_model.predictor(), tiny_model.spec.order
+    styles = [jnp.asarray(r.styles[f][o:]) for f in tiny_model.spec.dynamics_factors]
+    for t in range(o, 25):
+        lags = jnp.asarray(np.stack([r.I[t - 1 - k] for k in range(o)])[:, None, :])
+        mean, var = predict_dynamics(P, lags, [s[t - o:t - o + 1] for s in styles])
+        np.testing.assert_allclose(r.I[t], np.asarray(mean)[0], rtol=1e-9, atol=1e-12)
+        expected = float(var[0] + noise_variances(P)["I"])
+        np.testing.assert_allclose(r.I_var[t], expected, rtol=1e-9)
+
+
+def test_the_predictor_is_conditioned_once_per_model(tiny_model):
+    assert tiny_model.predictor() is tiny_model.predictor()
+    other = tiny_model.with_params(tiny_model.params)
+    assert other.predictor() is not tiny_model.predictor()

@@ -66,6 +66,7 @@ class FittedHGPDM:
     trials: tuple
     fps: float
     diagnostics: dict = field(default_factory=dict)
+    _cache: dict = field(default_factory=dict, init=False, repr=False)
 
     # ------------------------------------------------------------------ accessors
     @property
@@ -122,6 +123,15 @@ class FittedHGPDM:
         from dataclasses import replace
 
         return replace(self, params={k: np.asarray(v) for k, v in params.items()})
+
+    def predictor(self):
+        """Every layer conditioned on the training data at the MAP (cached: the parameters of
+        a fitted model never change; :meth:`with_params` returns a new model)."""
+        from .predict import condition
+
+        if "predictor" not in self._cache:
+            self._cache["predictor"] = condition(self)
+        return self._cache["predictor"]
 
     # ------------------------------------------------------------------ generation
     def generate(self, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,

@@ -26,12 +26,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .data.fk import fk_function
+from . import kernels
+from .data.fk import fk_function, fk_variance_function
 from .data.motion import Motion
 from .errors import BayesmotionError
 from .predict import (
     Predictor,
-    condition,
     noise_variances,
     predict_bottom,
     predict_dynamics,
@@ -172,20 +172,37 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool):
     """Roll the dynamics forward n_steps from I0 (o, Q) with per-step styles (n_steps, K_f).
 
     Returns (I (n_steps, Q), one-step variance (n_steps,) including the dynamics noise).
+
+    The mean rollout needs only the predictive means, O(M Q) per step inside ``lax.scan``;
+    its one-step variances are computed afterwards for all steps at once (one triangular solve
+    with n_steps right-hand sides). A sampled rollout needs each step's variance to draw it, so
+    it computes it inside the scan.
     """
     noise = noise_variances(P)["I"]
-    keys = jax.random.split(key, n_steps)
+    o = I0.shape[0]
 
-    def step(lags, inp):
+    def mean_step(lags, s):
+        kx = kernels.dynamics_kernel(list(P.dyn_lags), list(lags[:, None, :]),
+                                     list(P.dyn_style), [x[None] for x in s], P.alpha)
+        new = (kx.T @ P.dyn.A)[0]
+        return jnp.concatenate([new[None], lags[:-1]], axis=0), new
+
+    def sample_step(lags, inp):
         s, k = inp
         mean, var = predict_dynamics(P, lags[:, None, :], [x[None] for x in s])
         v = var[0] + noise
-        eps = jax.random.normal(k, mean[0].shape) if sample else jnp.zeros_like(mean[0])
-        new = mean[0] + jnp.sqrt(v) * eps
+        new = mean[0] + jnp.sqrt(v) * jax.random.normal(k, mean[0].shape)
         return jnp.concatenate([new[None], lags[:-1]], axis=0), (new, v)
 
-    _, (I, v) = jax.lax.scan(step, I0[::-1], (tuple(styles), keys))
-    return I, v
+    if sample:
+        keys = jax.random.split(key, n_steps)
+        _, (I, v) = jax.lax.scan(sample_step, I0[::-1], (tuple(styles), keys))
+        return I, v
+    _, I = jax.lax.scan(mean_step, I0[::-1], tuple(styles))
+    full = jnp.concatenate([I0, I])
+    lags = jnp.stack([full[o - 1 - k:o - 1 - k + n_steps] for k in range(o)])
+    _, var = predict_dynamics(P, lags, list(styles))
+    return I, var + noise
 
 
 @partial(jax.jit, static_argnames=("n_actors",))
@@ -244,9 +261,15 @@ def decode_actor(model, actor: int, Y, Y_var, trial: int):
 
 
 def _positions_with_var(sk, values, var):
-    fk, jac = _fk_and_jacobian(sk)
-    J = np.asarray(jac(jnp.asarray(values)))
-    return np.asarray(fk(jnp.asarray(values))), np.einsum("tjkc,tc->tjk", J**2, var)
+    """Joint positions and their first-order variance (analytic FK Jacobian, see
+    :func:`bayesmotion.data.fk.fk_variance_function`)."""
+    from .data.fk import layout_key
+
+    key = ("var", layout_key(sk))
+    if key not in _JAC_CACHE:
+        _JAC_CACHE[key] = jax.jit(fk_variance_function(sk))
+    p, v = _JAC_CACHE[key](jnp.asarray(values), jnp.asarray(var), jnp.asarray(sk.offsets))
+    return np.asarray(p), np.asarray(v)
 
 
 # --------------------------------------------------------------------------- the public driver
@@ -277,7 +300,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
         values["couple"] = couple if couple is not None else model.levels["couple"][0]
     coords = {f: resolve_style(model, f, values.get(f, model.levels[f][0]), n_frames)
               for f in model.spec.factors}
-    P = condition(model) if predictor is None else predictor
+    P = model.predictor() if predictor is None else predictor
     o = model.spec.order
     if isinstance(start, str) and start == "prior":
         r, desc = _start_trial(model, coords, None), "prior mean"

@@ -31,7 +31,6 @@ from .clip import clip_poses
 from .errors import BayesmotionError
 from .infer_density import clip_log_density
 from .params import simplex_to_style, style_to_simplex
-from .predict import condition
 
 _STATIC = ("int_factors", "dyn_factors", "init_var")
 
@@ -270,7 +269,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, prior=None, method: 
                             latent_uncertainty and k == 0)
                  for k, i in enumerate(idx)]
         return _pool(parts)
-    return _infer_one(model, condition(model), clip, frames, couple, prior, seed, n_walkers,
+    return _infer_one(model, model.predictor(), clip, frames, couple, prior, seed, n_walkers,
                       n_steps, max_iter, latent_uncertainty)
 
 
