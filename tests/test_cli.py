@@ -81,6 +81,10 @@ def test_demo_quick_writes_every_file(tmp_path):
         assert key in s
     assert {"max_rhat", "min_ess_bulk", "mean_acceptance"} <= set(s["posterior"])
     assert 0 <= s["inference"]["accuracy"] <= 1
+    first = s["inference"]["position_coverage_first_second"]
+    assert 0 <= first["0.5"] <= first["0.9"] <= 1
+    bins = s["inference"]["position_coverage_by_horizon"]
+    assert bins[0]["from_s"] == 0 and len(bins) >= 2
     assert s["seconds_total"] > 0
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:

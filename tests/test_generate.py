@@ -125,3 +125,25 @@ def test_the_predictor_is_conditioned_once_per_model(tiny_model):
     assert tiny_model.predictor() is tiny_model.predictor()
     other = tiny_model.with_params(tiny_model.params)
     assert other.predictor() is not tiny_model.predictor()
+
+
+def test_interval_coverage_counts_per_horizon():
+    """Hand-built case: 10 fps, 2 observed frames, errors of 0.5 sd in the first second and
+    3 sd afterwards -> inside both intervals in the first second, inside neither later."""
+    from bayesmotion.evaluate import interval_coverage
+
+    T = 32
+    mean = np.zeros((2, T, 3, 3))
+    var = np.full_like(mean, 4.0)
+    truth = np.where(np.arange(T)[None, :, None, None] < 12, 1.0, 6.0) * np.ones_like(mean)
+    truth[:, :2] = 0.0
+    c = interval_coverage(truth, mean, var, fps=10.0, n_observed=2)
+    assert c["first_second"] == {"0.5": 1.0, "0.9": 1.0}
+    assert c["by_horizon"][1] == {"from_s": 1.0, "to_s": 2.0, "0.5": 0.0, "0.9": 0.0}
+    assert c["by_horizon"][-1]["to_s"] == 3.0  # the last, partial bin ends at the last frame
+    assert c["overall"]["0.9"] == 10 / 30
+    # an error of 1 sd: outside the 50% interval (0.674 sd), inside the 90% one (1.645 sd)
+    c = interval_coverage(np.full_like(mean, 2.0), mean, var, n_observed=2)
+    assert c["overall"] == {"0.5": 0.0, "0.9": 1.0}
+    with pytest.raises(BayesmotionError, match="share one shape"):
+        interval_coverage(truth[:, :5], mean, var)

@@ -33,22 +33,17 @@ def _split(ds):
 
 
 def _coverage(model, trial, ep, qs=(0.5, 0.9)):
-    """Fraction of the trial's true joint positions inside the predictive intervals when
-    generating from its inferred start, per credible level."""
-    from scipy.stats import norm
+    """Coverage of the trial's true joint positions by the predictive intervals when generating
+    from its inferred start (analytic one-step variance + the sampled rollouts' spread), overall
+    and per one-second horizon (:func:`bayesmotion.evaluate.interval_coverage`)."""
+    from .evaluate import interval_coverage
 
-    T = trial.n_frames
     r = model.generate(emotion=trial.labels["emotion"], couple=trial.labels.get("couple"),
-                       n_frames=T, n_samples=8, start=ep.latents["I"][:model.spec.order])
+                       n_frames=trial.n_frames, n_samples=8,
+                       start=ep.latents["I"][:model.spec.order])
     truth = np.stack([a.positions() for a in trial.actors])
-    var = r.positions_var + r.sample_var["positions"]
-    sd = np.sqrt(np.maximum(var, 1e-12))
-    out = {}
-    for q in qs:
-        z = norm.ppf(0.5 + q / 2)
-        inside = np.abs(truth - r.positions) <= z * sd
-        out[str(q)] = float(inside[:, model.spec.order:].mean())
-    return out
+    return interval_coverage(truth, r.positions, r.positions_var + r.sample_var["positions"],
+                             qs, fps=model.fps, n_observed=model.spec.order)
 
 
 def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
@@ -173,7 +168,15 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
         "accuracy": float(np.mean([t == p for t, p in zip(true, pred, strict=True)])),
         "confusion_percent": C.tolist(), "levels": levels,
         "interval90_covers_truth": float(np.mean([r[-1] for r in rows])),
-        "position_coverage": {q: float(np.mean([c[q] for c in cover])) for q in ("0.5", "0.9")}}
+        "position_coverage": {q: float(np.mean([c["overall"][q] for c in cover]))
+                              for q in ("0.5", "0.9")},
+        "position_coverage_first_second": {
+            q: float(np.mean([c["first_second"][q] for c in cover])) for q in ("0.5", "0.9")},
+        "position_coverage_by_horizon": [
+            {"from_s": b["from_s"], "to_s": b["to_s"],
+             **{q: float(np.mean([c["by_horizon"][i][q] for c in cover])) for q in ("0.5", "0.9")}}
+            for i, b in enumerate(cover[0]["by_horizon"][:min(len(c["by_horizon"])
+                                                              for c in cover)])]}
     stage("inference")
     summary["stage_seconds"] = stages
     summary["seconds_total"] = time.perf_counter() - t_all

@@ -130,3 +130,41 @@ def format_confusion(result: dict) -> str:
                       for i, l in enumerate(levels)]
     lines.append(f"overall {100 * result['accuracy']:.1f}% +- {100 * result['accuracy_sd']:.1f}")
     return "\n".join(lines)
+
+
+def interval_coverage(truth, mean, var, qs=(0.5, 0.9), fps: float = 1.0, n_observed: int = 0,
+                      horizon_s: float = 1.0) -> dict:
+    """How often the truth falls inside central Gaussian predictive intervals, per horizon.
+
+    Args:
+        truth, mean, var: (..., T, ...) arrays with time on axis ``-3`` (joint positions
+            (A, T, J, 3)) -- any layout whose axis -3 is time.
+        qs: nominal levels.
+        fps: frame rate (horizons are reported in seconds).
+        n_observed: leading frames copied from data (excluded: zero variance there).
+        horizon_s: width of each horizon bin in seconds.
+    Returns:
+        {"overall": {q: fraction}, "first_second": {q: fraction}, "by_horizon":
+        [{"from_s", "to_s", q: fraction, ...}]}, fractions over every coordinate in the window.
+    """
+    from scipy.stats import norm
+
+    truth, mean, var = (np.asarray(a, dtype=np.float64) for a in (truth, mean, var))
+    if not truth.shape == mean.shape == var.shape or truth.ndim < 3:
+        raise BayesmotionError(f"truth, mean and var must share one shape with time on axis -3;"
+                               f" got {truth.shape}, {mean.shape}, {var.shape}")
+    T = truth.shape[-3]
+    if not 0 <= n_observed < T:
+        raise BayesmotionError(f"n_observed must be in [0, {T}), got {n_observed}")
+    sd = np.sqrt(np.maximum(var, 1e-300))
+    err = np.abs(truth - mean)
+    inside = {str(q): err <= norm.ppf(0.5 + q / 2) * sd for q in qs}
+
+    def frac(a, b):
+        return {q: float(ins[..., a:b, :, :].mean()) for q, ins in inside.items()}
+
+    width = max(int(round(horizon_s * fps)), 1)
+    bins = [{"from_s": (a - n_observed) / fps, "to_s": (min(a + width, T) - n_observed) / fps,
+             **frac(a, min(a + width, T))} for a in range(n_observed, T, width)]
+    return {"overall": frac(n_observed, T), "first_second": frac(n_observed, n_observed + width),
+            "by_horizon": bins}
