@@ -167,34 +167,19 @@ def numpy_positions(skeleton: Skeleton, values: np.ndarray, with_end_sites=False
 
 
 def _channel_tables(layout: tuple):
-    """Static per-channel tables for first-order variance propagation through FK.
-
-    Returns owner (C,) joint of each channel, axis (C,) 0/1/2, is_rot (C,) bool and
-    affects (C, J) bool: which joint positions the channel moves (a rotation channel moves the
-    strict descendants of its joint; a position channel moves its joint and all descendants).
-    """
+    """Static per-channel tables: owner (C,) joint of each channel, is_rot (C,) bool."""
     parents, rot_idx, orders, pos_idx, _ = layout
     J = len(parents)
-    desc = np.eye(J, dtype=bool)  # desc[j, d]: d is j or below j
-    for d in range(J):
-        p = parents[d]
-        while p >= 0:
-            desc[p, d] = True
-            p = parents[p]
     cols = [c for j in range(J) for c in (*rot_idx[j][:len(orders[j])], *pos_idx[j]) if c >= 0]
     C = max(cols) + 1 if cols else 0
-    owner, axis = np.zeros(C, int), np.zeros(C, int)
-    is_rot, affects = np.zeros(C, bool), np.zeros((C, J), bool)
+    owner, is_rot = np.zeros(C, int), np.zeros(C, bool)
     for j in range(J):
-        for k, ax in enumerate(orders[j]):
-            c = rot_idx[j][k]
-            owner[c], axis[c], is_rot[c] = j, "XYZ".index(ax), True
-            affects[c] = desc[j] & (np.arange(J) != j)
-        for a in range(3):
-            c = pos_idx[j][a]
+        for k in range(len(orders[j])):
+            owner[rot_idx[j][k]], is_rot[rot_idx[j][k]] = j, True
+        for c in pos_idx[j]:
             if c >= 0:
-                owner[c], axis[c], affects[c] = j, a, desc[j]
-    return owner, axis, is_rot, affects
+                owner[c] = j
+    return owner, is_rot
 
 
 def _fk_with_variance(values, var, offsets, *, layout):
@@ -206,8 +191,8 @@ def _fk_with_variance(values, var, offsets, *, layout):
     ``jacfwd`` of the FK (a test checks this) at a fraction of its cost.
     """
     parents, rot_idx, orders, pos_idx, _ = layout
-    owner, axis, is_rot, affects = _channel_tables(layout)
-    T, C = values.shape
+    owner, is_rot = _channel_tables(layout)
+    T, C, J = values.shape[0], len(owner), len(parents)
     eye = jnp.eye(3, dtype=values.dtype)
     Rw, pw = [], []
     dirs = [None] * C
@@ -229,12 +214,35 @@ def _fk_with_variance(values, var, offsets, *, layout):
     P = jnp.stack(pw, axis=1)  # (T, J, 3)
     zero = jnp.zeros((T, 3), values.dtype)
     W = jnp.stack([d if d is not None else zero for d in dirs], axis=1)  # (T, C, 3)
-    pivot = P[:, owner]  # (T, C, 3)
-    rel = P[:, None, :, :] - pivot[:, :, None, :]  # (T, C, J, 3)
-    rot = jnp.cross(W[:, :, None, :], rel) * (np.pi / 180.0)
-    D = jnp.where(jnp.asarray(is_rot)[None, :, None, None], rot, W[:, :, None, :])
-    D = D * jnp.asarray(affects, values.dtype)[None, :, :, None]
-    return P, jnp.einsum("tcjk,tc->tjk", D * D, var[:, :len(owner)])
+    # Expand |w x (p - q)|_k^2 = (M_k . p - s_k)^2 with M = [w]_x, s = w x q, so that the sum
+    # over channels is a sum of per-channel features G_kab = M_ka M_kb, h_kb = s_k M_kb,
+    # e_k = s_k^2 (position channels: G = h = 0, e = W^2), accumulated down the tree, instead of
+    # a (T, C, J, 3) Jacobian. Points are taken relative to the root to keep the terms small.
+    P0 = P - P[:, :1]
+    q = P0[:, owner]  # (T, C, 3) pivots
+    M = jnp.cross(W[:, :, None, :], jnp.eye(3, dtype=values.dtype)[None, None])  # M[.., b, :]
+    M = jnp.swapaxes(M, -1, -2)  # M[t, c, k, b] = (w x e_b)_k
+    sv = jnp.cross(W, q)
+    rad2 = (np.pi / 180.0) ** 2
+    rot = jnp.asarray(is_rot)[None, :, None]
+    G = jnp.where(rot[..., None, None], M[..., :, :, None] * M[..., :, None, :], 0.0)
+    h = jnp.where(rot[..., None], sv[..., :, None] * M, 0.0)
+    e = jnp.where(rot, sv * sv, W * W / rad2)
+    feats = jnp.concatenate([G.reshape(T, C, 27), h.reshape(T, C, 9), e], axis=-1) * rad2
+    featsw = feats * var[:, :C, None]
+    # channels that move joint j: its parent's reach, the parent's rotations, j's positions
+    reach = []
+    for j, parent in enumerate(parents):
+        acc = sum((featsw[:, c] for c in pos_idx[j] if c >= 0), jnp.zeros_like(featsw[:, 0]))
+        if parent >= 0:
+            acc = acc + reach[parent] + sum(featsw[:, rot_idx[parent][k]]
+                                            for k in range(len(orders[parent])))
+        reach.append(acc)
+    agg = jnp.stack(reach, axis=1)  # (T, J, F)
+    Gd, hd, ed = agg[..., :27].reshape(T, J, 3, 3, 3), agg[..., 27:36].reshape(T, J, 3, 3), \
+        agg[..., 36:]
+    quad = jnp.einsum("tjkab,tja,tjb->tjk", Gd, P0, P0)
+    return P, jnp.maximum(quad - 2 * jnp.einsum("tjkb,tjb->tjk", hd, P0) + ed, 0.0)
 
 
 def fk_variance_function(skeleton: Skeleton):
