@@ -41,6 +41,7 @@ BENCHMARKS = [
     "generation_fps",
     "sampler_ess",
     "blas_threads",
+    "study_interpolation",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 

@@ -400,6 +400,33 @@ def headlines(summary: dict) -> list[dict]:
     return rows
 
 
+def markdown_table(result: dict) -> str:
+    """The README's results table, rendered from a study result (``--table``)."""
+    if "summary" not in result:
+        return f"(study not run: {result.get('skipped', 'no summary')})"
+
+    def f(v, fmt="{:.2f}"):
+        return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else fmt.format(v)
+
+    head = ("| method | pairs | Spearman(strength, s) | monotone steps | calibration error "
+            "| gain 1 -> 1.25 | classifier p(target) at s = 1 | Spearman(p, s) | jerk / real "
+            "| foot sliding / real | interpolates the emotion |")
+    rows = [head, "|" + "---|" * 11]
+    for m in result["methods"]:
+        a = result["summary"][m]
+        if not a.get("n_pairs"):
+            rows.append(f"| {m} | 0 |" + " - |" * 9)
+            continue
+        rows.append(
+            f"| {m} | {a['n_pairs']} | {f(a.get('strength_spearman'))} "
+            f"| {f(a.get('strength_monotonicity'))} | {f(a.get('strength_calibration_error'))} "
+            f"| {f(a.get('extrapolation_gain'), '{:+.2f}')} "
+            f"| {f(a.get('classifier_p_target_at_1'))} | {f(a.get('classifier_spearman'))} "
+            f"| {f(a.get('mean_jerk_ratio'))} | {f(a.get('mean_foot_sliding_ratio'))} "
+            f"| {'yes' if a['interpolates_emotion'] else 'no'} |")
+    return "\n".join(rows) + "\n\n" + result["conclusion"]
+
+
 def run(quick: bool, root: str | Path | None = None, out: str | Path | None = None,
         settings: Settings | None = None) -> dict:
     """Run the study (QUICK or full ``Settings``), write the JSON atomically, return it."""
@@ -452,7 +479,16 @@ def main(argv=None) -> int:
     ap.add_argument("--root", default=None, help=f"Bandai folder (default {DATA_ROOT})")
     ap.add_argument("--out", default=None, help="JSON path (default results/<name>.json)")
     ap.add_argument("--max-iter", type=int, default=None, help="override the H-GPDM iterations")
+    ap.add_argument("--table", action="store_true",
+                    help="print the markdown table of an existing result (--out or the default "
+                         "results file) instead of running")
     a = ap.parse_args(argv)
+    if a.table:
+        import json
+
+        path = Path(a.out) if a.out else RESULTS / f"{NAME}.json"
+        print(markdown_table(json.loads(path.read_text())))
+        return 0
     cfg = QUICK if a.quick else Settings()
     if a.max_iter is not None:
         cfg = replace(cfg, max_iter=a.max_iter)

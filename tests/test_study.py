@@ -90,3 +90,20 @@ def test_quick_study_scores_every_method_at_every_s(bandai_root, tmp_path):
             and agg["strength_calibration_error"] <= c["calibration_error_max"])
         assert method in saved["conclusion"]
     assert res["headline"] and len(res["headline"]) == len(study.METHODS)
+    table = study.markdown_table(saved).splitlines()
+    assert len(table) == 2 + len(study.METHODS) + 2  # header, rule, methods, blank, conclusion
+    for method, row in zip(study.METHODS, table[2:], strict=False):
+        verdict = "yes" if saved["summary"][method]["interpolates_emotion"] else "no"
+        assert row.startswith(f"| {method} | 1 |") and row.endswith(f"| {verdict} |")
+
+
+def test_the_readme_table_is_the_committed_full_study_output():
+    """The README's study table must be the one rendered from results/study_interpolation.json
+    (python benchmarks/study_interpolation.py --table), not typed by hand."""
+    root = Path(__file__).resolve().parents[1]
+    path = root / "benchmarks" / "results" / "study_interpolation.json"
+    if not path.exists():
+        pytest.skip("no committed study result")
+    result = json.loads(path.read_text())
+    assert result["mode"] == "full", "the committed study result must come from a full run"
+    assert study.markdown_table(result) in (root / "README.md").read_text()

@@ -220,20 +220,19 @@ def map_down(P: Predictor, I, int_styles, n_actors: int):
 
 
 # --------------------------------------------------------------------------- decoding to motion
-_JAC_CACHE: dict = {}
+_FK_CACHE: dict = {}
 
 
-def _fk_and_jacobian(skeleton):
-    """Jitted (values (T, C)) -> positions (T, J, 3), d positions / d values (T, J, 3, C)."""
+def _fk_jitted(skeleton):
+    """Jitted values (..., T, C) -> positions (..., T, J, 3) for this skeleton's offsets."""
     from .data.fk import layout_key
 
     key = layout_key(skeleton)
-    if key not in _JAC_CACHE:
-        f = fk_function(skeleton)
-        _JAC_CACHE[key] = (jax.jit(f), jax.jit(jax.vmap(jax.jacfwd(f), in_axes=(0, None))))
-    fk, jac = _JAC_CACHE[key]
+    if key not in _FK_CACHE:
+        _FK_CACHE[key] = jax.jit(fk_function(skeleton))
+    fk = _FK_CACHE[key]
     off = jnp.asarray(skeleton.offsets)
-    return (lambda v: fk(v, off)), (lambda v: jac(v, off))
+    return lambda v: fk(v, off)
 
 
 def _anchor(model, codec, trial: int, actor: int, n_frames: int):
@@ -260,16 +259,34 @@ def decode_actor(model, actor: int, Y, Y_var, trial: int):
     return motion.values, var, sk
 
 
+def _padded(a: np.ndarray) -> jnp.ndarray:
+    """Frames (axis -2) padded with zeros to a power-of-two bucket, so that rollouts of many
+    lengths share a few compiled FK functions."""
+    from .data.fk import _bucket
+
+    a = np.asarray(a)
+    pad = [(0, 0)] * a.ndim
+    pad[-2] = (0, _bucket(a.shape[-2]) - a.shape[-2])
+    return jnp.asarray(np.pad(a, pad))
+
+
+def _positions(sk, values) -> np.ndarray:
+    """Joint positions (..., T, J, 3) of channel values (..., T, C)."""
+    T = np.shape(values)[-2]
+    return np.asarray(_fk_jitted(sk)(_padded(values)))[..., :T, :, :]
+
+
 def _positions_with_var(sk, values, var):
     """Joint positions and their first-order variance (analytic FK Jacobian, see
     :func:`bayesmotion.data.fk.fk_variance_function`)."""
     from .data.fk import layout_key
 
     key = ("var", layout_key(sk))
-    if key not in _JAC_CACHE:
-        _JAC_CACHE[key] = jax.jit(fk_variance_function(sk))
-    p, v = _JAC_CACHE[key](jnp.asarray(values), jnp.asarray(var), jnp.asarray(sk.offsets))
-    return np.asarray(p), np.asarray(v)
+    if key not in _FK_CACHE:
+        _FK_CACHE[key] = jax.jit(fk_variance_function(sk))
+    T = values.shape[0]
+    p, v = _FK_CACHE[key](_padded(values), _padded(var), jnp.asarray(sk.offsets))
+    return np.asarray(p)[:T], np.asarray(v)[:T]
 
 
 # --------------------------------------------------------------------------- the public driver
@@ -349,7 +366,7 @@ def _map_and_decode_samples(model, P, I_s, int_s, trial):
         anchor = _anchor(model, codec, trial, a, Y.shape[2])
         v = np.stack([codec.decode(y, anchor, sk, model.fps).values for y in Y[:, a]])
         angles.append(v)
-        positions.append(np.asarray(_fk_and_jacobian(sk)[0](jnp.asarray(v))))
+        positions.append(_positions(sk, v))
     return {"X": X, "Y": Y, "angles": np.stack(angles, 1), "positions": np.stack(positions, 1)}
 
 
@@ -365,7 +382,7 @@ def _map_and_decode(model, P, I, int_s, trial, with_var=True):
         if with_var:
             p, pv = _positions_with_var(sk, v, var)
         else:
-            p, pv = np.asarray(_fk_and_jacobian(sk)[0](jnp.asarray(v))), None
+            p, pv = _positions(sk, v), None
         ang.append(v), ang_var.append(var), pos.append(p), pos_var.append(pv), sks.append(sk)
     if not with_var:
         return {"X": X, "Y": Y, "angles": np.stack(ang), "positions": np.stack(pos)}

@@ -45,31 +45,82 @@ def euler_to_matrix(angles_deg: jax.Array, order: str) -> jax.Array:
     return R
 
 
+@lru_cache(maxsize=64)
+def _plan(layout: tuple):
+    """Static (NumPy) schedule of a joint layout for FK vectorised over joints.
+
+    groups: per Euler order string, (joints (n,), channel columns (n, len(order))).
+    pos: (joint, axis, column) triples of the position channels.
+    levels: joints grouped by depth, each with its parents; the world transforms are built one
+    depth level at a time (about 10 batched steps for a 31-joint body instead of 31 unrolled
+    joints, which keeps compilation short).
+    """
+    parents, rot_idx, orders, pos_idx, _ = layout
+    J = len(parents)
+    groups: dict[str, list] = {}
+    for j in range(J):
+        if orders[j]:
+            groups.setdefault(orders[j], []).append(j)
+    groups = {o: (np.array(js), np.array([rot_idx[j][:len(o)] for j in js]))
+              for o, js in groups.items()}
+    pos = np.array([(j, a, pos_idx[j][a]) for j in range(J) for a in range(3)
+                    if pos_idx[j][a] >= 0], dtype=int).reshape(-1, 3)
+    depth = np.zeros(J, int)
+    for j in range(J):
+        depth[j] = 0 if parents[j] < 0 else depth[parents[j]] + 1
+    levels = [(np.flatnonzero(depth == d), np.array(parents)[depth == d])
+              for d in range(depth.max() + 1)]
+    return groups, pos, levels
+
+
+def _local(values, offsets, layout):
+    """Joint-major local transforms: rotations (J, T, 3, 3), the Euler partial products of
+    every order group, translations (J, T, 3). values: (T, C). (Joint-major so that the
+    per-level gathers and scatters move contiguous blocks.)"""
+    groups, pos, _ = _plan(layout)
+    T, J = values.shape[0], len(layout[0])
+    vT = values.T  # (C, T)
+    eye = jnp.eye(3, dtype=values.dtype)
+    R = jnp.broadcast_to(eye, (J, T, 3, 3))
+    partial_products = {}
+    for order, (js, cols) in groups.items():
+        Rg = jnp.broadcast_to(eye, (js.size, T, 3, 3))
+        parts = []
+        for k, axis in enumerate(order):
+            parts.append(Rg)
+            Rg = Rg @ axis_rotation(axis, jnp.deg2rad(vT[cols[:, k]]))
+        partial_products[order] = parts
+        R = R.at[js].set(Rg)
+    t = jnp.broadcast_to(offsets.astype(values.dtype)[:, None, :], (J, T, 3))
+    if pos.size:
+        t = t.at[pos[:, 0], :, pos[:, 1]].set(vT[pos[:, 2]])
+    return R, partial_products, t
+
+
+def _world(R, t, layout):
+    """Joint-major world rotations (J, T, 3, 3) and positions (J, T, 3), level by level."""
+    _, _, levels = _plan(layout)
+    roots, _ = levels[0]
+    Rw = jnp.zeros_like(R).at[roots].set(R[roots])
+    pw = jnp.zeros_like(t).at[roots].set(t[roots])
+    for js, ps in levels[1:]:
+        Rp = Rw[ps]
+        Rw = Rw.at[js].set(Rp @ R[js])
+        pw = pw.at[js].set(pw[ps] + jnp.einsum("jtab,jtb->jta", Rp, t[js]))
+    return Rw, pw
+
+
 def _fk(values, offsets, end_offsets, *, layout, with_end_sites: bool):
-    parents, rot_idx, orders, pos_idx, end_joints = layout
     lead = values.shape[:-1]
-    Rw, pw = [], []
-    for j, parent in enumerate(parents):
-        n_rot = len(orders[j])
-        if n_rot:
-            R = euler_to_matrix(values[..., list(rot_idx[j][:n_rot])], orders[j])
-        else:
-            R = jnp.broadcast_to(jnp.eye(3, dtype=values.dtype), lead + (3, 3))
-        t = jnp.broadcast_to(offsets[j].astype(values.dtype), lead + (3,))
-        for a in range(3):
-            if pos_idx[j][a] >= 0:
-                t = t.at[..., a].set(values[..., pos_idx[j][a]])
-        if parent < 0:
-            Rw.append(R)
-            pw.append(t)
-        else:
-            Rw.append(Rw[parent] @ R)
-            pw.append(pw[parent] + jnp.einsum("...ij,...j->...i", Rw[parent], t))
-    if with_end_sites:
-        for k, j in enumerate(end_joints):
-            off = end_offsets[k].astype(values.dtype)
-            pw.append(pw[j] + jnp.einsum("...ij,j->...i", Rw[j], off))
-    return jnp.stack(pw, axis=-2)
+    v = values.reshape(-1, values.shape[-1])
+    R, _, t = _local(v, offsets, layout)
+    Rw, pw = _world(R, t, layout)
+    if with_end_sites and len(layout[4]):
+        ends = np.asarray(layout[4])
+        tips = pw[ends] + jnp.einsum("jtab,jb->jta", Rw[ends], end_offsets.astype(v.dtype))
+        pw = jnp.concatenate([pw, tips], axis=0)
+    pw = jnp.swapaxes(pw, 0, 1)
+    return pw.reshape(*lead, *pw.shape[-2:])
 
 
 def layout_key(skeleton: Skeleton) -> tuple:
@@ -192,57 +243,56 @@ def _fk_with_variance(values, var, offsets, *, layout):
     """
     parents, rot_idx, orders, pos_idx, _ = layout
     owner, is_rot = _channel_tables(layout)
+    groups, pos, levels = _plan(layout)
     T, C, J = values.shape[0], len(owner), len(parents)
-    eye = jnp.eye(3, dtype=values.dtype)
-    Rw, pw = [], []
-    dirs = [None] * C
-    for j, parent in enumerate(parents):
-        Rp = Rw[parent] if parent >= 0 else jnp.broadcast_to(eye, (T, 3, 3))
-        R = Rp
-        for k, ax in enumerate(orders[j]):
-            c = rot_idx[j][k]
-            dirs[c] = R[..., :, "XYZ".index(ax)]  # world axis of this rotation
-            R = R @ axis_rotation(ax, jnp.deg2rad(values[:, c]))
-        t = jnp.broadcast_to(offsets[j].astype(values.dtype), (T, 3))
-        for a in range(3):
-            c = pos_idx[j][a]
-            if c >= 0:
-                t = t.at[:, a].set(values[:, c])
-                dirs[c] = Rp[..., :, a]
-        Rw.append(R)
-        pw.append(t if parent < 0 else pw[parent] + jnp.einsum("tij,tj->ti", Rp, t))
-    P = jnp.stack(pw, axis=1)  # (T, J, 3)
-    zero = jnp.zeros((T, 3), values.dtype)
-    W = jnp.stack([d if d is not None else zero for d in dirs], axis=1)  # (T, C, 3)
+    R, parts, t = _local(values, offsets, layout)
+    Rw, Pj = _world(R, t, layout)
+    P = jnp.swapaxes(Pj, 0, 1)  # (T, J, 3)
+    # the parent's world rotation of every joint (identity at roots), joint-major
+    par = np.asarray(parents)
+    Rp = jnp.where(jnp.asarray(par >= 0)[:, None, None, None], Rw[np.maximum(par, 0)],
+                   jnp.eye(3, dtype=values.dtype))
+    Wc = jnp.zeros((C, T, 3), values.dtype)
+    for order, (js, cols) in groups.items():  # world axis of each Euler rotation
+        for k, axis in enumerate(order):
+            frame = Rp[js] @ parts[order][k]  # (n, T, 3, 3)
+            Wc = Wc.at[cols[:, k]].set(frame[..., :, "XYZ".index(axis)])
+    if pos.size:
+        Wc = Wc.at[pos[:, 2]].set(Rp[pos[:, 0], :, :, pos[:, 1]])
     # Expand |w x (p - q)|_k^2 = (M_k . p - s_k)^2 with M = [w]_x, s = w x q, so that the sum
     # over channels is a sum of per-channel features G_kab = M_ka M_kb, h_kb = s_k M_kb,
     # e_k = s_k^2 (position channels: G = h = 0, e = W^2), accumulated down the tree, instead of
     # a (T, C, J, 3) Jacobian. Points are taken relative to the root to keep the terms small.
-    P0 = P - P[:, :1]
-    q = P0[:, owner]  # (T, C, 3) pivots
-    M = jnp.cross(W[:, :, None, :], jnp.eye(3, dtype=values.dtype)[None, None])  # M[.., b, :]
-    M = jnp.swapaxes(M, -1, -2)  # M[t, c, k, b] = (w x e_b)_k
-    sv = jnp.cross(W, q)
+    # Everything is channel- or joint-major (leading axis), frames second.
+    P0 = Pj - Pj[:1]  # (J, T, 3)
+    q = P0[owner]  # (C, T, 3) pivots
+    M = jnp.swapaxes(jnp.cross(Wc[:, :, None, :], jnp.eye(3, dtype=values.dtype)), -1, -2)
+    sv = jnp.cross(Wc, q)  # M[c, t, k, b] = (w x e_b)_k
     rad2 = (np.pi / 180.0) ** 2
-    rot = jnp.asarray(is_rot)[None, :, None]
+    rot = jnp.asarray(is_rot)[:, None, None]
     G = jnp.where(rot[..., None, None], M[..., :, :, None] * M[..., :, None, :], 0.0)
     h = jnp.where(rot[..., None], sv[..., :, None] * M, 0.0)
-    e = jnp.where(rot, sv * sv, W * W / rad2)
-    feats = jnp.concatenate([G.reshape(T, C, 27), h.reshape(T, C, 9), e], axis=-1) * rad2
-    featsw = feats * var[:, :C, None]
+    e = jnp.where(rot, sv * sv, Wc * Wc / rad2)
+    feats = jnp.concatenate([G.reshape(C, T, 27), h.reshape(C, T, 9), e], axis=-1)
+    featsw = feats * (rad2 * var[:, :C].T[..., None])  # (C, T, F)
     # channels that move joint j: its parent's reach, the parent's rotations, j's positions
-    reach = []
-    for j, parent in enumerate(parents):
-        acc = sum((featsw[:, c] for c in pos_idx[j] if c >= 0), jnp.zeros_like(featsw[:, 0]))
-        if parent >= 0:
-            acc = acc + reach[parent] + sum(featsw[:, rot_idx[parent][k]]
-                                            for k in range(len(orders[parent])))
-        reach.append(acc)
-    agg = jnp.stack(reach, axis=1)  # (T, J, F)
-    Gd, hd, ed = agg[..., :27].reshape(T, J, 3, 3, 3), agg[..., 27:36].reshape(T, J, 3, 3), \
+    F = featsw.shape[-1]
+    rot_cols = np.flatnonzero(is_rot)
+    rot_sum = jnp.zeros((J, T, F), values.dtype).at[owner[rot_cols]].add(featsw[rot_cols])
+    pos_sum = jnp.zeros((J, T, F), values.dtype)
+    if pos.size:
+        pos_sum = pos_sum.at[pos[:, 0]].add(featsw[pos[:, 2]])
+    roots, _ = levels[0]
+    agg = jnp.zeros((J, T, F), values.dtype).at[roots].set(pos_sum[roots])
+    for js, ps in levels[1:]:
+        agg = agg.at[js].set(agg[ps] + rot_sum[ps] + pos_sum[js])
+    Gd, hd, ed = agg[..., :27].reshape(J, T, 3, 3, 3), agg[..., 27:36].reshape(J, T, 3, 3), \
         agg[..., 36:]
-    quad = jnp.einsum("tjkab,tja,tjb->tjk", Gd, P0, P0)
-    return P, jnp.maximum(quad - 2 * jnp.einsum("tjkb,tjb->tjk", hd, P0) + ed, 0.0)
+    pp = P0[..., :, None] * P0[..., None, :]  # (J, T, 3, 3)
+    quad = jnp.sum(Gd * pp[..., None, :, :], axis=(-1, -2))  # elementwise: XLA fuses these
+    lin = jnp.sum(hd * P0[..., None, :], axis=-1)
+    var_p = jnp.maximum(quad - 2 * lin + ed, 0.0)
+    return P, jnp.swapaxes(var_p, 0, 1)
 
 
 def fk_variance_function(skeleton: Skeleton):
