@@ -50,7 +50,6 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool = Fal
             params0[STYLE_PREFIX + f] = np.asarray(simplex_to_style(mean))
     params, diag = map_optimize(logp, params0, max_iter=max_iter, gtol=gtol, progress=progress,
                                 desc="MAP fit")
-    diag["initial_objective"] = float(-logp(params0, 1e-8))
     return FittedHGPDM(spec=spec, params=params, codecs=codecs, levels=dict(dataset.levels),
                        data=data, trials=trial_records(dataset, codecs, spec.root_mode),
                        fps=dataset.fps, diagnostics=diag)

@@ -77,13 +77,22 @@ class FittedHGPDM:
     def log_posterior_fn(self) -> LogPosterior:
         return LogPosterior(self.spec, self.data)
 
+    def _jitted(self, name: str):
+        """The log-posterior's ``__call__`` / ``layer_terms``, jitted once per model (run
+        eagerly, op by op, they spend seconds compiling every operation)."""
+        key = "jit_" + name
+        if key not in self._cache:
+            lp = self.log_posterior_fn
+            self._cache[key] = jax.jit(lp if name == "call" else getattr(lp, name))
+        return self._cache[key]
+
     def log_posterior(self, params: dict | None = None, jitter: float = 1e-8) -> float:
         """Joint log-posterior (eq. 12) at ``params`` (default: the MAP)."""
         p = self.params if params is None else params
-        return float(self.log_posterior_fn({k: jnp.asarray(v) for k, v in p.items()}, jitter))
+        return float(self._jitted("call")({k: jnp.asarray(v) for k, v in p.items()}, jitter))
 
     def layer_terms(self, jitter: float = 1e-8) -> dict[str, float]:
-        terms = self.log_posterior_fn.layer_terms(
+        terms = self._jitted("layer_terms")(
             {k: jnp.asarray(v) for k, v in self.params.items()}, jitter)
         return {k: float(v) for k, v in terms.items()}
 

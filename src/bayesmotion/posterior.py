@@ -80,6 +80,9 @@ class Target:
 
         self._logp = logp
         self.logp = jax.jit(logp)
+        # one compiled value-and-gradient, shared by the conditional MAP and the Laplace step
+        self._neg_vg = jax.jit(jax.value_and_grad(
+            lambda x, j: -lp({**self.fixed, **self.unravel(x)}, j)))
         self.logp_batch = jax.jit(jax.vmap(logp))
 
     @property
@@ -95,7 +98,7 @@ class Target:
         start = {k: np.asarray(v) for k, v in self.unravel(jnp.asarray(self.x0)).items()}
         params, diag = map_optimize(lambda p, j: self.model.log_posterior_fn(
             {**self.fixed, **p}, j), start, max_iter=max_iter, progress=progress,
-            desc="conditional MAP")
+            desc="conditional MAP", value_and_grad=self._neg_vg)
         x, _ = ravel_pytree({k: jnp.asarray(v) for k, v in params.items()})
         return np.asarray(x), diag
 
@@ -105,7 +108,7 @@ class Target:
         ``jax.hessian`` through the Cholesky factors took 15 s at N = 340, the differences 7 s).
         Directions where the Hessian is not positive definite (a saddle or a flat ridge) get the
         prior's variance, 9 in log units."""
-        grad = jax.jit(jax.grad(lambda x: -self._logp(x)))
+        grad = lambda x: self._neg_vg(x, self.jitter)[1]
         h, n = 1e-4, centre.size
         H = np.empty((n, n))
         for i in range(n):
