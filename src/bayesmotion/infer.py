@@ -303,9 +303,11 @@ def _infer_one(model, P, clip, frames, couple, prior, seed, n_walkers, n_steps, 
     latents = {"X": params["X"], "I": params["I"]}
     sd = {}
     if latent_uncertainty:
-        key = jax.random.PRNGKey(seed)
+        # Rademacher probes from NumPy (jax.random.rademacher took 4-6 s to compile here)
+        prng = np.random.default_rng(seed)
         probes = jax.tree_util.tree_map(
-            lambda x: jax.random.rademacher(key, (16,) + x.shape).astype(x.dtype), latents)
+            lambda x: jnp.asarray(prng.choice([-1.0, 1.0], size=(16,) + x.shape), x.dtype),
+            latents)
         diag = _latent_diag_hessian(params, probes, *args, **statics)
         sd = {f"{k}_sd": np.asarray(1.0 / jnp.sqrt(jnp.maximum(v, 1e-12)))[..., :T, :]
               if k == "X" else np.asarray(1.0 / jnp.sqrt(jnp.maximum(v, 1e-12)))[:T]
@@ -318,9 +320,10 @@ def _infer_one(model, P, clip, frames, couple, prior, seed, n_walkers, n_steps, 
     rng = np.random.default_rng(seed)
     p0 = x0 + 0.05 * rng.standard_normal((W, ndim))
 
-    def log_prob(xs):
-        return np.asarray(_style_logp_batch(jnp.asarray(xs), latents, *args, **statics,
-                                            keys=keys), dtype=np.float64)
+    def log_prob(xs):  # in chunks of W/2 (emcee's half-ensemble): one compilation
+        return np.concatenate([np.asarray(_style_logp_batch(
+            jnp.asarray(xs[i:i + W // 2]), latents, *args, **statics, keys=keys),
+            dtype=np.float64) for i in range(0, xs.shape[0], W // 2)])
 
     sampler = emcee.EnsembleSampler(W, ndim, log_prob, vectorize=True)
     state = emcee.State(p0, random_state=np.random.RandomState(seed).get_state())
