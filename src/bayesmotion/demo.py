@@ -105,7 +105,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
                             "warning": post.info.get("warning")}
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="More chains")  # walkers outnumber draws
-        axes = post.plot_trace(var_names=["gamma", "beta", "alpha"])
+        axes = post.plot_trace(var_names=["gamma", "beta", "alpha"], combined=True)
     fig = np.ravel(axes)[0].figure
     fig.savefig(out / "trace.png", dpi=70)
     plt.close(fig)

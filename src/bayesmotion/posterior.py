@@ -123,6 +123,14 @@ class Target:
         return (V * var) @ V.T
 
 
+def _in_halves(batch_fn, xs, n_walkers: int) -> np.ndarray:
+    """``batch_fn`` over rows of ``xs`` in chunks of ``n_walkers // 2`` (emcee's half-ensemble
+    size), so the whole ensemble and its halves share one compilation."""
+    h = max(n_walkers // 2, 1)
+    return np.concatenate([np.asarray(batch_fn(jnp.asarray(xs[i:i + h])), dtype=np.float64)
+                           for i in range(0, len(xs), h)])
+
+
 def _start_points(target, centre, n, init, ball, rng):
     """``n`` starting points: ``init="laplace"`` draws from the Laplace approximation (points
     whose density is not finite are redrawn closer to the centre); ``"ball"`` a Gaussian ball of
@@ -134,7 +142,7 @@ def _start_points(target, centre, n, init, ball, rng):
     L = np.linalg.cholesky(target.laplace(centre) + 1e-12 * np.eye(centre.size))
     p = centre + rng.standard_normal((n, centre.size)) @ L.T
     for shrink in (0.5, 0.25, 0.1, 0.0):
-        bad = ~np.isfinite(np.asarray(target.logp_batch(jnp.asarray(p))))
+        bad = ~np.isfinite(_in_halves(target.logp_batch, p, n))
         if not bad.any():
             break
         p[bad] = centre + shrink * rng.standard_normal((bad.sum(), centre.size)) @ L.T
@@ -302,7 +310,7 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
         raise BayesmotionError(f"emcee needs at least 2 * ndim = {2 * ndim} walkers, got {W}")
 
     def log_prob(xs):
-        return np.asarray(target.logp_batch(jnp.asarray(xs)), dtype=np.float64)
+        return _in_halves(target.logp_batch, xs, W)
 
     be = None
     resume, todo = False, n_steps
