@@ -42,6 +42,7 @@ BENCHMARKS = [
     "sampler_ess",
     "blas_threads",
     "study_interpolation",
+    "bandai_inference",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 

@@ -1,0 +1,43 @@
+"""The real-clip inference benchmark (benchmarks/bandai_inference.py) at reduced size."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import bandai_inference  # noqa: E402
+from _common import write_json  # noqa: E402
+
+
+def test_missing_data_is_a_skip_record(tmp_path):
+    res = bandai_inference.run(True, root=tmp_path / "absent")
+    assert "skipped" in res and res["headline"] == []
+
+
+@pytest.mark.slow
+def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
+    res = bandai_inference.run(True, root=bandai_root)
+    write_json(tmp_path / "r.json", res)
+    saved = json.loads((tmp_path / "r.json").read_text())  # strict JSON
+    r = saved["result"]
+    assert len(r["trials"]) == len(saved["clips"]) == 8  # quick: two walk contents
+    levels = r["levels"]
+    assert sorted(levels) == ["angry", "happy", "neutral", "sad"]
+    C = np.asarray(r["confusion_percent"])
+    np.testing.assert_allclose(C.sum(0), 100.0)  # intended emotions in columns
+    true = [t["true"] for t in r["trials"]]
+    pred = [t["pred"] for t in r["trials"]]
+    hit = [a == b for a, b in zip(true, pred, strict=True)]
+    assert r["accuracy"] == pytest.approx(np.mean(hit))
+    for t in r["trials"]:
+        assert t["pred"] in levels and len(t["probabilities"]) == 4
+    # the diagonal: the share of each intended emotion inferred correctly
+    hits = [np.mean([p == t for t, p in zip(true, pred, strict=True) if t == e]) for e in levels]
+    np.testing.assert_allclose(np.diag(C), 100 * np.asarray(hits))
+    assert set(r["baselines"]) == {"affective_features", "mean_pose_nn"}
+    assert [h["metric"].strip()[:6] for h in saved["headline"]] == \
+        ["H-GPDM", "affect", "mean-p", "second"]
