@@ -27,7 +27,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from _common import RESULTS, headline, write_json  # noqa: E402
+from _common import RESULTS, headline, machine_info, write_json  # noqa: E402
 
 NAME = "bandai_inference"
 DATA_ROOT = HERE.parent.parent / "shared" / "data" / "bandai-emotion"
@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     ap.add_argument("--root", default=None, help=f"Bandai folder (default {DATA_ROOT})")
     a = ap.parse_args(argv)
     res = run(a.quick, a.root)
-    write_json(RESULTS / f"{NAME}.json", res)
+    write_json(RESULTS / f"{NAME}.json", {**res, "status": "ok", "machine": machine_info()})
     print(res.get("skipped") or res["confusion_table"])
     return 0
 

@@ -126,7 +126,9 @@ def readme(results: dict[str, dict]) -> str:
     for name, r in results.items():
         mode = r.get("mode", "?")
         date = r.get("machine", {}).get("date_utc", "")[:10]
-        if r.get("status") != "ok":
+        # records written by a benchmark's own command line (not run_all) carry no status
+        ok = r.get("status", "error" if "error" in r else "ok") == "ok"
+        if not ok:
             lines.append(f"| {name} | {mode} | **failed** | | | | | {r.get('error', '')} |")
             continue
         for i, h in enumerate(r.get("headline", [])):

@@ -51,7 +51,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from _common import RESULTS, headline, write_json  # noqa: E402
+from _common import RESULTS, headline, machine_info, write_json  # noqa: E402
 
 import bayesmotion  # noqa: E402, F401  (float64 on)
 from bayesmotion.baselines import (  # noqa: E402
@@ -468,6 +468,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
         "pairs": pairs, "summary": summary, "conclusion": conclusion(summary),
         "headline": headlines(summary),
         "timing_s": {"hgpdm_fit": t_fit, "total": time.perf_counter() - t0},
+        "status": "ok", "machine": machine_info(),
     }
     write_json(out, result)
     return result
