@@ -150,13 +150,38 @@ def readme(results: dict[str, dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_readme() -> None:
+README_MAIN = HERE.parent / "README.md"
+START, END = "<!-- benchmarks:start -->", "<!-- benchmarks:end -->"
+
+
+def embed(readme_text: str, table: str) -> str:
+    """The project README with the text between the benchmark markers replaced by ``table``."""
+    if START not in readme_text or END not in readme_text:
+        return readme_text
+    head, rest = readme_text.split(START, 1)
+    _, tail = rest.split(END, 1)
+    return f"{head}{START}\n{table}{END}{tail}"
+
+
+def load_results() -> dict:
     results = {}
     for name in BENCHMARKS:
         p = RESULTS / f"{name}.json"
         if p.exists():
             results[name] = json.loads(p.read_text())
-    write_text(RESULTS / "README.md", readme(results))
+    return results
+
+
+def write_readme() -> None:
+    """results/README.md from every result file, and the same table in the project README
+    (between the benchmark markers)."""
+    text = readme(load_results())
+    write_text(RESULTS / "README.md", text)
+    if README_MAIN.exists():
+        table = text.split("\n\n", 2)[2]  # from "Machine:" on (no title, no file note)
+        new = embed(README_MAIN.read_text(), table)
+        if new != README_MAIN.read_text():
+            write_text(README_MAIN, new)
 
 
 def main(argv=None) -> int:
