@@ -26,8 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import kernels
-from .data.fk import fk_function, fk_variance_function
+from .data.fk import forward_kinematics, forward_kinematics_with_variance
 from .data.motion import Motion
 from .errors import BayesmotionError
 from .predict import (
@@ -35,6 +34,7 @@ from .predict import (
     noise_variances,
     predict_bottom,
     predict_dynamics,
+    predict_dynamics_mean,
     predict_interaction,
 )
 
@@ -182,9 +182,7 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool):
     o = I0.shape[0]
 
     def mean_step(lags, s):
-        kx = kernels.dynamics_kernel(list(P.dyn_lags), list(lags[:, None, :]),
-                                     list(P.dyn_style), [x[None] for x in s], P.alpha)
-        new = (kx.T @ P.dyn.A)[0]
+        new = predict_dynamics_mean(P, lags[:, None, :], [x[None] for x in s])[0]
         return jnp.concatenate([new[None], lags[:-1]], axis=0), new
 
     def sample_step(lags, inp):
@@ -220,21 +218,6 @@ def map_down(P: Predictor, I, int_styles, n_actors: int):
 
 
 # --------------------------------------------------------------------------- decoding to motion
-_FK_CACHE: dict = {}
-
-
-def _fk_jitted(skeleton):
-    """Jitted values (..., T, C) -> positions (..., T, J, 3) for this skeleton's offsets."""
-    from .data.fk import layout_key
-
-    key = layout_key(skeleton)
-    if key not in _FK_CACHE:
-        _FK_CACHE[key] = jax.jit(fk_function(skeleton))
-    fk = _FK_CACHE[key]
-    off = jnp.asarray(skeleton.offsets)
-    return lambda v: fk(v, off)
-
-
 def _anchor(model, codec, trial: int, actor: int, n_frames: int):
     anchor = np.asarray(model.trials[trial].anchors[actor])
     if codec.root_mode == "partner":
@@ -259,34 +242,16 @@ def decode_actor(model, actor: int, Y, Y_var, trial: int):
     return motion.values, var, sk
 
 
-def _padded(a: np.ndarray) -> jnp.ndarray:
-    """Frames (axis -2) padded with zeros to a power-of-two bucket, so that rollouts of many
-    lengths share a few compiled FK functions."""
-    from .data.fk import _bucket
-
-    a = np.asarray(a)
-    pad = [(0, 0)] * a.ndim
-    pad[-2] = (0, _bucket(a.shape[-2]) - a.shape[-2])
-    return jnp.asarray(np.pad(a, pad))
-
-
 def _positions(sk, values) -> np.ndarray:
     """Joint positions (..., T, J, 3) of channel values (..., T, C)."""
-    T = np.shape(values)[-2]
-    return np.asarray(_fk_jitted(sk)(_padded(values)))[..., :T, :, :]
+    return np.asarray(forward_kinematics(sk, values))
 
 
 def _positions_with_var(sk, values, var):
     """Joint positions and their first-order variance (analytic FK Jacobian, see
-    :func:`bayesmotion.data.fk.fk_variance_function`)."""
-    from .data.fk import layout_key
-
-    key = ("var", layout_key(sk))
-    if key not in _FK_CACHE:
-        _FK_CACHE[key] = jax.jit(fk_variance_function(sk))
-    T = values.shape[0]
-    p, v = _FK_CACHE[key](_padded(values), _padded(var), jnp.asarray(sk.offsets))
-    return np.asarray(p)[:T], np.asarray(v)[:T]
+    :func:`bayesmotion.data.fk.forward_kinematics_with_variance`)."""
+    p, v = forward_kinematics_with_variance(sk, values, var)
+    return np.asarray(p), np.asarray(v)
 
 
 # --------------------------------------------------------------------------- the public driver

@@ -122,10 +122,18 @@ def predict_dynamics(P: Predictor, lags_new, style_new):
     Returns:
         mean (B, Q_I), latent-function variance (B,) (add 1/alpha_noise for a noisy step).
     """
-    kx = kernels.dynamics_kernel(list(P.dyn_lags), list(lags_new), list(P.dyn_style),
-                                 list(style_new), P.alpha)
     kxx = kernels.dynamics_diag(list(lags_new), list(style_new), P.alpha)
-    return _mean_var(kx, kxx, P.dyn)
+    return _mean_var(_dynamics_cross(P, lags_new, style_new), kxx, P.dyn)
+
+
+def predict_dynamics_mean(P: Predictor, lags_new, style_new):
+    """The mean of :func:`predict_dynamics` alone, O(M) per input (no triangular solve)."""
+    return _dynamics_cross(P, lags_new, style_new).T @ P.dyn.A
+
+
+def _dynamics_cross(P: Predictor, lags_new, style_new):
+    return kernels.dynamics_kernel(list(P.dyn_lags), list(lags_new), list(P.dyn_style),
+                                   list(style_new), P.alpha)
 
 
 def predict_interaction(P: Predictor, I_new, style_new):

@@ -29,22 +29,6 @@ def axis_rotation(axis: str, angle: jax.Array) -> jax.Array:
     return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
 
 
-def euler_to_matrix(angles_deg: jax.Array, order: str) -> jax.Array:
-    """Intrinsic Euler angles to matrices, ``R = R_order[0] @ R_order[1] @ ...``.
-
-    Args:
-        angles_deg: (..., len(order)) angles in degrees, in the listed order.
-        order: axes such as ``"ZYX"``.
-    Returns:
-        (..., 3, 3) rotation matrices.
-    """
-    rad = jnp.deg2rad(angles_deg)
-    R = jnp.broadcast_to(jnp.eye(3, dtype=rad.dtype), rad.shape[:-1] + (3, 3))
-    for k, axis in enumerate(order):
-        R = R @ axis_rotation(axis, rad[..., k])
-    return R
-
-
 @lru_cache(maxsize=64)
 def _plan(layout: tuple):
     """Static (NumPy) schedule of a joint layout for FK vectorised over joints.
@@ -298,3 +282,21 @@ def _fk_with_variance(values, var, offsets, *, layout):
 def fk_variance_function(skeleton: Skeleton):
     """Traceable ``(values (T, C), var (T, C), offsets) -> positions, variance (T, J, 3)``."""
     return partial(_fk_with_variance, layout=layout_key(skeleton))
+
+
+@lru_cache(maxsize=64)
+def _jitted_fk_variance(layout: tuple):
+    return jax.jit(partial(_fk_with_variance, layout=layout))
+
+
+def forward_kinematics_with_variance(skeleton: Skeleton, values, var):
+    """World joint positions (T, J, 3) and their first-order variance (T, J, 3) from channel
+    values (T, C) with independent variances (T, C); compiled per joint layout and padded
+    frame bucket, like :func:`forward_kinematics`."""
+    f = _jitted_fk_variance(layout_key(skeleton))
+    values, var = np.asarray(values), np.asarray(var)
+    n = values.shape[0]
+    pad = ((0, _bucket(n) - n), (0, 0))
+    p, v = f(jnp.asarray(np.pad(values, pad)), jnp.asarray(np.pad(var, pad)),
+             jnp.asarray(skeleton.offsets))
+    return p[:n], v[:n]
