@@ -320,10 +320,11 @@ def _infer_one(model, P, clip, frames, couple, prior, seed, n_walkers, n_steps, 
     rng = np.random.default_rng(seed)
     p0 = x0 + 0.05 * rng.standard_normal((W, ndim))
 
-    def log_prob(xs):  # in chunks of W/2 (emcee's half-ensemble): one compilation
-        return np.concatenate([np.asarray(_style_logp_batch(
-            jnp.asarray(xs[i:i + W // 2]), latents, *args, **statics, keys=keys),
-            dtype=np.float64) for i in range(0, xs.shape[0], W // 2)])
+    from .posterior import _in_halves
+
+    def log_prob(xs):  # in emcee's half-ensemble chunks: one compilation
+        return _in_halves(lambda x: _style_logp_batch(x, latents, *args, **statics, keys=keys),
+                          xs, W)
 
     sampler = emcee.EnsembleSampler(W, ndim, log_prob, vectorize=True)
     state = emcee.State(p0, random_state=np.random.RandomState(seed).get_state())
