@@ -12,7 +12,7 @@ def cmu():
     return bm.load_cmu_handshake().actors
 
 
-@pytest.mark.parametrize("mode", ["velocity", "partner", "absolute"])
+@pytest.mark.parametrize("mode", ["heading", "velocity", "partner", "absolute"])
 def test_decode_encode_reproduces_joint_positions(cmu, mode):
     a, b = cmu
     codec = PoseCodec.fit([a], [b] if mode == "partner" else None, root_mode=mode)
@@ -22,9 +22,11 @@ def test_decode_encode_reproduces_joint_positions(cmu, mode):
     assert err < 1e-6
 
 
-def test_real_bandai_round_trip_and_constant_channels(bandai_files):
+@pytest.mark.parametrize("mode", ["heading", "velocity"])
+def test_real_bandai_round_trip_and_constant_channels(bandai_files, mode):
     m = bm.read_bvh(bandai_files[0])
-    codec = PoseCodec.fit([m])
+    codec = PoseCodec.fit([m], root_mode=mode)
+    assert m.skeleton.names[codec.mover] == "Hips"  # joint_Root is static in Bandai files
     enc = codec.encode(m)
     back = codec.decode(enc.Y, enc.anchor, skeleton=m.skeleton, fps=m.fps)
     assert np.abs(back.positions() - m.positions()).max() / m.skeleton.size() < 1e-6
@@ -71,3 +73,46 @@ def test_layout_mismatch_names_joints(cmu):
     other = bm.Motion(bm.Skeleton(names, sk.parents, sk.offsets, sk.channels), a.values, a.fps)
     with pytest.raises(bm.SkeletonMismatchError, match="LeftLeg"):
         codec.encode(other)
+
+
+def _turned(motion, degrees, shift=(0.0, 0.0)):
+    """The same motion rotated about the vertical axis through the origin and shifted."""
+    from scipy.spatial.transform import Rotation
+
+    sk = motion.skeleton
+    v = motion.values.copy()
+    j = 0
+    idx, orders = sk.rotation_layout()
+    pos = sk.position_layout()[j]
+    turn = Rotation.from_euler("Y", degrees, degrees=True)
+    R = turn * Rotation.from_euler(orders[j].upper(), v[:, idx[j]], degrees=True)
+    v[:, idx[j]] = R.as_euler(orders[j].upper(), degrees=True)
+    v[:, pos] = turn.apply(v[:, pos]) + np.array([shift[0], 0.0, shift[1]])
+    return motion.replace(values=v)
+
+
+def test_heading_mode_is_invariant_to_walking_direction(cmu):
+    a, _ = cmu
+    turned = _turned(a, 130.0, shift=(250.0, -40.0))
+    # the same body motion, facing and travelling elsewhere: positions differ...
+    assert np.abs(turned.positions() - a.positions()).max() > 100
+    for mode, same in (("heading", True), ("velocity", False)):
+        codec = PoseCodec.fit([a], root_mode=mode)
+        d = np.abs(codec.encode(turned).Y - codec.encode(a).Y).max()
+        assert (d < 1e-6) == same, (mode, d)
+    codec = PoseCodec.fit([a], root_mode="heading")
+    enc = codec.encode(turned)
+    back = codec.decode(enc.Y, enc.anchor, skeleton=a.skeleton, fps=a.fps)
+    np.testing.assert_allclose(back.positions(), turned.positions(), atol=1e-6 * a.skeleton.size())
+    assert codec.channel_names[-1].endswith(":heading_rate")
+    rate = codec.encode(a).Y[:, -1] * codec.scale[-1] + codec.mean[-1]
+    psi = np.deg2rad(np.cumsum(rate[1:]) / a.fps)
+    assert np.all(np.isfinite(psi))
+
+
+def test_heading_mode_needs_horizontal_translation():
+    sk = bm.Skeleton(["r"], [-1], np.zeros((1, 3)),
+                     [("Yposition", "Zrotation", "Xrotation", "Yrotation")])
+    m = bm.Motion(sk, np.random.default_rng(0).normal(size=(20, 4)), 25.0)
+    with pytest.raises(bm.BayesmotionError, match="horizontal position"):
+        PoseCodec.fit([m], root_mode="heading")

@@ -232,11 +232,13 @@ def decode_actor(model, actor: int, Y, Y_var, trial: int):
     T = Y.shape[0]
     motion = codec.decode(np.asarray(Y), _anchor(model, codec, trial, actor, T), sk, model.fps)
     var = np.zeros_like(motion.values)
-    var[:, codec.keep] = np.asarray(Y_var)[:, None] * codec.scale**2
-    if codec.root_mode == "velocity":
-        from .data.representation import _root_horizontal_columns
-
-        h = _root_horizontal_columns(sk)
+    full = np.zeros((T, codec.constant.size))
+    full[:, codec.keep] = np.asarray(Y_var)[:, None] * codec.scale**2
+    var = full[:, :var.shape[1]]
+    if codec.root_mode in ("velocity", "heading"):
+        # positions integrate velocities: variances add up (the heading's own uncertainty is
+        # not propagated into the path: first order, heading treated as known)
+        h = codec.horizontal_columns(sk)
         var[:, h] = np.concatenate([np.zeros((1, h.size)),
                                     np.cumsum(var[1:, h], 0) / model.fps**2])
     return motion.values, var, sk

@@ -70,7 +70,7 @@ class HGPDM:
         interaction_factors: style factors entering the interaction kernel (default: those of
             ("couple", "emotion") present in the data).
         dynamics_factors: style factors entering the dynamics kernel (same default).
-        root_mode: root translation representation ("partner" for two actors, "velocity" for
+        root_mode: root translation representation ("partner" for two actors, "heading" for
             one, by default); see bayesmotion.data.representation.
         scaling: per-channel scaling of Y ("type" or "channel").
         priors: prior settings.
@@ -104,7 +104,7 @@ class HGPDM:
                                        f"it has {list(dataset.levels)}")
             spec = replace(spec, **{name: val})
         if spec.root_mode is None:
-            spec = replace(spec, root_mode="partner" if dataset.n_actors == 2 else "velocity")
+            spec = replace(spec, root_mode="partner" if dataset.n_actors == 2 else "heading")
         return spec
 
     @property

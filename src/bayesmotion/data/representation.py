@@ -8,9 +8,16 @@
   and keeps the channel layout of Taubert et al., who model joint angles. The exponential map is
   smoother near gimbal lock, but converting back is not bit-exact and the real data here never
   comes near it (checked in tests: frame-to-frame steps stay small after unwrapping).
-* **Root translation** (the root's horizontal position channels; the vertical one is kept):
-  ``"velocity"`` -- per-second horizontal velocity, with the first position stored as an anchor
-  (one-actor clips such as gaits, where absolute position carries no style);
+* **Root translation.** The *mover* is the first joint whose horizontal position channels change
+  in the training data: the root in CMU files, ``Hips`` under Bandai's static ``joint_Root``.
+  Its horizontal position channels (the vertical one is kept) are represented as
+  ``"heading"`` -- velocity in the mover's own heading frame plus the heading's rate of turn,
+  with the mover's rotation stored with its heading removed; the first position and heading are
+  the anchor. A walk to the left and a walk to the right then look alike: only how the body
+  moves relative to where it faces is modelled (the default for one-actor clips such as gaits,
+  where the walking direction carries no style);
+  ``"velocity"`` -- per-second horizontal velocity in the world frame, with the first position
+  stored as an anchor;
   ``"partner"`` -- position relative to the midpoint of the two actors' roots, with the midpoint
   trajectory stored as the anchor (two-actor trials: the approach is the interaction);
   ``"absolute"`` -- unchanged.
@@ -36,7 +43,8 @@ from ..errors import BayesmotionError, SkeletonMismatchError
 from .motion import Motion
 from .skeleton import ROTATION_CHANNELS, Skeleton
 
-RootMode = Literal["velocity", "partner", "absolute"]
+RootMode = Literal["heading", "velocity", "partner", "absolute"]
+ROOT_MODES = ("heading", "velocity", "partner", "absolute")
 UP_AXIS = 1  # Y is up in BVH files from CMU and Bandai
 
 
@@ -46,16 +54,66 @@ class Encoded(NamedTuple):
     Attributes:
         Y: (T, D) normalised pose features.
         anchor: what decoding needs besides Y: (2,) first horizontal root position
-            ("velocity"), (T, 2) partner midpoint ("partner"), or (0,) ("absolute").
+            ("velocity"), (3,) first horizontal position and heading in radians ("heading"),
+            (T, 2) partner midpoint ("partner"), or (0,) ("absolute").
     """
 
     Y: np.ndarray
     anchor: np.ndarray
 
 
-def _root_horizontal_columns(skeleton: Skeleton) -> np.ndarray:
-    cols = skeleton.root_position_columns
+def _root_horizontal_columns(skeleton: Skeleton, mover: int = 0) -> np.ndarray:
+    cols = skeleton.position_layout()[mover]
     return np.array([cols[a] for a in range(3) if a != UP_AXIS and cols[a] >= 0], dtype=int)
+
+
+def find_mover(motions) -> int:
+    """The first joint whose horizontal position channels change over ``motions`` (0 if none).
+
+    BVH exporters differ: CMU translates the root, Bandai keeps a static ``joint_Root`` and
+    translates ``Hips`` below it."""
+    sk = motions[0].skeleton
+    for j in range(sk.n_joints):
+        h = _root_horizontal_columns(sk, j)
+        if h.size == 0:
+            continue
+        v = np.concatenate([m.values[:, h] for m in motions])
+        if np.any(v.max(0) - v.min(0) > 1e-9 * (1.0 + np.abs(v).max())):
+            return j
+    return 0
+
+
+def _euler_matrices(order: str, degrees: np.ndarray) -> np.ndarray:
+    """(T, 3, 3) rotation of BVH Euler angles (T, 3) applied in channel ``order``."""
+    from .fk import _np_axis_rotation
+
+    R = np.broadcast_to(np.eye(3), (degrees.shape[0], 3, 3))
+    for k, axis in enumerate(order):
+        R = R @ _np_axis_rotation(axis, np.deg2rad(degrees[:, k]))
+    return R
+
+
+def _matrices_to_euler(order: str, R: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`_euler_matrices` (intrinsic Tait-Bryan), unwrapped in time."""
+    from scipy.spatial.transform import Rotation
+
+    e = Rotation.from_matrix(R).as_euler(order.upper(), degrees=True)
+    return np.unwrap(e, period=360.0, axis=0)
+
+
+def _yaw(angle: np.ndarray) -> np.ndarray:
+    """(T, 3, 3) rotations about the up axis by ``angle`` radians."""
+    from .fk import _np_axis_rotation
+
+    return _np_axis_rotation("XYZ"[UP_AXIS], angle)
+
+
+def _horizontal_angle(vec: np.ndarray) -> np.ndarray:
+    """Angle psi of the horizontal part of vectors (T, 3) such that yaw(-psi) turns it onto +X."""
+    unit = np.zeros((vec.shape[0], 3))
+    unit[:, 0] = 1.0
+    side = np.cross(unit, vec)[:, UP_AXIS]  # sin psi * |v_h|, sign fixed by the yaw convention
+    return np.unwrap(np.arctan2(side, vec[:, 0]))
 
 
 def _unwrap(values: np.ndarray, rot: np.ndarray) -> np.ndarray:
@@ -64,8 +122,7 @@ def _unwrap(values: np.ndarray, rot: np.ndarray) -> np.ndarray:
     return v
 
 
-def _midpoint(motion: Motion, partner: Motion) -> np.ndarray:
-    h = _root_horizontal_columns(motion.skeleton)
+def _midpoint(motion: Motion, partner: Motion, h: np.ndarray) -> np.ndarray:
     if partner.n_frames != motion.n_frames:
         raise BayesmotionError("partner motion must have the same number of frames")
     return 0.5 * (motion.values[:, h] + partner.values[:, h])
@@ -83,6 +140,10 @@ class PoseCodec:
         mean: (D,) per-channel mean of the kept channels.
         scale: (D,) per-channel scale of the kept channels.
         scaling: "type" or "channel" (how ``scale`` was chosen).
+        mover: the joint whose horizontal translation is the root motion (:func:`find_mover`).
+        heading_axis: ("heading" only) the mover's local axis whose horizontal direction defines
+            its heading: the axis closest to horizontal in the training data. The transformed
+            channel space then has one extra last column, the heading's rate (deg/s).
     """
 
     skeleton: Skeleton
@@ -92,6 +153,8 @@ class PoseCodec:
     mean: np.ndarray
     scale: np.ndarray
     scaling: str = "type"
+    mover: int = 0
+    heading_axis: int = -1
 
     @property
     def dim(self) -> int:
@@ -99,8 +162,14 @@ class PoseCodec:
 
     @property
     def channel_names(self) -> tuple[str, ...]:
-        names = self.skeleton.channel_names
+        names = list(self.skeleton.channel_names)
+        if self.root_mode == "heading":
+            names.append(f"{self.skeleton.names[self.mover]}:heading_rate")
         return tuple(names[c] for c in self.keep)
+
+    def horizontal_columns(self, skeleton: Skeleton | None = None) -> np.ndarray:
+        """Columns of the mover's horizontal position channels."""
+        return _root_horizontal_columns(skeleton or self.skeleton, self.mover)
 
     # ---------------------------------------------------------------- fitting
     @classmethod
@@ -117,9 +186,9 @@ class PoseCodec:
         motions = list(motions)
         if not motions:
             raise BayesmotionError("PoseCodec.fit needs at least one motion")
-        if root_mode not in ("velocity", "partner", "absolute"):
-            raise BayesmotionError(
-                f"root_mode must be velocity/partner/absolute, got {root_mode!r}")
+        if root_mode not in ROOT_MODES:
+            raise BayesmotionError(f"root_mode must be one of {'/'.join(ROOT_MODES)}, "
+                                   f"got {root_mode!r}")
         if root_mode == "partner" and (partners is None or len(partners) != len(motions)):
             raise BayesmotionError("root_mode='partner' needs one partner motion per motion")
         if scaling not in ("type", "channel"):
@@ -127,8 +196,13 @@ class PoseCodec:
         sk = motions[0].skeleton
         for m in motions[1:]:
             check_layout(sk, m.skeleton)
-        proto = cls(sk, root_mode, np.arange(sk.n_channels), np.zeros(sk.n_channels),
-                    np.zeros(sk.n_channels), np.ones(sk.n_channels), scaling)
+        mover = find_mover(motions)
+        axis = -1
+        if root_mode == "heading":
+            axis = _heading_axis(motions, mover)
+        width = sk.n_channels + (root_mode == "heading")
+        proto = cls(sk, root_mode, np.arange(width), np.zeros(width), np.zeros(width),
+                    np.ones(width), scaling, mover, axis)
         raw = np.concatenate([proto._transform(m, None if partners is None else partners[i])[0]
                               for i, m in enumerate(motions)])
         rng = raw.max(0) - raw.min(0)
@@ -144,22 +218,35 @@ class PoseCodec:
             for k in np.unique(kind):
                 sel = kind == k
                 scale[sel] = np.sqrt(np.mean(std[sel] ** 2)) or 1.0
-        return cls(sk, root_mode, keep, raw[0].copy(), mean, scale, scaling)
+        return cls(sk, root_mode, keep, raw[0].copy(), mean, scale, scaling, mover, axis)
 
     def _kinds(self) -> np.ndarray:
-        """(C,) 0 for rotation channels, 1 for root horizontal, 2 for other positions."""
+        """(C[+1],) 0 for rotation channels, 1 for root horizontal, 2 for other positions,
+        3 for the heading rate."""
         rot = np.array([c in ROTATION_CHANNELS for ch in self.skeleton.channels for c in ch])
         kinds = np.where(rot, 0, 2)
-        kinds[_root_horizontal_columns(self.skeleton)] = 1
+        kinds[self.horizontal_columns()] = 1
+        if self.root_mode == "heading":
+            kinds = np.append(kinds, 3)
         return kinds
 
     def _rotation_mask(self) -> np.ndarray:
-        return self._kinds() == 0
+        return (self._kinds() == 0)[:self.skeleton.n_channels]
+
+    def _mover_rotation(self, skeleton: Skeleton):
+        idx, orders = skeleton.rotation_layout()
+        order = orders[self.mover]
+        if len(order) != 3:
+            raise BayesmotionError(f"root_mode='heading' needs three rotation channels on "
+                                   f"{skeleton.names[self.mover]!r}, it has {order!r}")
+        return idx[self.mover], order
 
     # ------------------------------------------------------------- transforms
     def _transform(self, motion: Motion, partner: Motion | None):
         v = _unwrap(motion.values, self._rotation_mask())
-        h = _root_horizontal_columns(self.skeleton)
+        h = self.horizontal_columns()
+        if self.root_mode == "heading":
+            return self._to_heading(v, h, motion.fps)
         if self.root_mode == "velocity" and h.size:
             anchor = v[0, h].copy()
             vel = np.diff(v[:, h], axis=0, prepend=v[:1, h]) * motion.fps
@@ -169,11 +256,43 @@ class PoseCodec:
         elif self.root_mode == "partner" and h.size:
             if partner is None:
                 raise BayesmotionError("root_mode='partner' needs the partner's motion")
-            anchor = _midpoint(motion, partner)
+            anchor = _midpoint(motion, partner, h)
             v[:, h] -= anchor
         else:
             anchor = np.zeros(0)
         return v, anchor
+
+    def _to_heading(self, v, h, fps):
+        """Channels (T, C) -> (T, C + 1): mover rotation without heading, body-frame horizontal
+        velocity, heading rate (deg/s) appended; anchor (x0, z0, psi0)."""
+        if h.size != 2:
+            raise BayesmotionError("root_mode='heading' needs both horizontal position "
+                                   "channels on the moving joint")
+        cols, order = self._mover_rotation(self.skeleton)
+        R = _euler_matrices(order, v[:, cols])
+        psi = _horizontal_angle(R[:, :, self.heading_axis])
+        un_yaw = _yaw(-psi)
+        v[:, cols] = _matrices_to_euler(order, un_yaw @ R)
+        vel = np.diff(v[:, h], axis=0, prepend=v[:1, h]) * fps
+        rate = np.rad2deg(np.diff(psi, prepend=psi[:1])) * fps
+        if v.shape[0] > 1:
+            vel[0], rate[0] = vel[1], rate[1]  # decoding ignores frame 0
+        anchor = np.array([*v[0, h], psi[0]])
+        v[:, h] = _rotate_horizontal(un_yaw, vel)
+        return np.concatenate([v, rate[:, None]], axis=1), anchor
+
+    def _from_heading(self, v, anchor, sk, fps):
+        """Inverse of :meth:`_to_heading` on (T, C + 1) -> (T, C)."""
+        h = self.horizontal_columns(sk)
+        cols, order = self._mover_rotation(sk)
+        a = np.zeros(3) if anchor is None or np.size(anchor) == 0 else np.asarray(anchor)
+        psi = a[2] + np.concatenate([[0.0], np.cumsum(np.deg2rad(v[1:, -1]) / fps)])
+        yaw = _yaw(psi)
+        v = v[:, :-1]
+        v[:, cols] = _matrices_to_euler(order, yaw @ _euler_matrices(order, v[:, cols]))
+        vel = _rotate_horizontal(yaw, v[:, h])
+        v[:, h] = np.concatenate([a[None, :2], a[:2] + np.cumsum(vel[1:] / fps, 0)])
+        return v
 
     def encode(self, motion: Motion, partner: Motion | None = None) -> Encoded:
         """Motion -> (Y (T, D), anchor)."""
@@ -199,8 +318,10 @@ class PoseCodec:
         check_layout(self.skeleton, sk)
         v = np.tile(self.constant, (Y.shape[0], 1))
         v[:, self.keep] = Y * self.scale + self.mean
-        h = _root_horizontal_columns(sk)
-        if self.root_mode == "velocity" and h.size:
+        h = self.horizontal_columns(sk)
+        if self.root_mode == "heading":
+            v = self._from_heading(v, anchor, sk, fps)
+        elif self.root_mode == "velocity" and h.size:
             start = np.zeros(h.size) if anchor is None or np.size(anchor) == 0 else anchor
             steps = v[1:, h] / fps
             v[:, h] = np.concatenate([np.asarray(start)[None], start + np.cumsum(steps, 0)])
@@ -215,15 +336,35 @@ class PoseCodec:
                 f"{prefix}mean": self.mean, f"{prefix}scale": self.scale}
 
     def to_meta(self) -> dict:
-        return {"root_mode": self.root_mode, "scaling": self.scaling,
-                "skeleton": self.skeleton.to_dict()}
+        return {"root_mode": self.root_mode, "scaling": self.scaling, "mover": self.mover,
+                "heading_axis": self.heading_axis, "skeleton": self.skeleton.to_dict()}
 
     @classmethod
     def from_saved(cls, meta: dict, arrays, prefix: str) -> PoseCodec:
         return cls(Skeleton.from_dict(meta["skeleton"]), meta["root_mode"],
                    np.asarray(arrays[f"{prefix}keep"], dtype=int),
                    np.asarray(arrays[f"{prefix}constant"]), np.asarray(arrays[f"{prefix}mean"]),
-                   np.asarray(arrays[f"{prefix}scale"]), meta.get("scaling", "type"))
+                   np.asarray(arrays[f"{prefix}scale"]), meta.get("scaling", "type"),
+                   int(meta.get("mover", 0)), int(meta.get("heading_axis", -1)))
+
+
+def _rotate_horizontal(R: np.ndarray, hv: np.ndarray) -> np.ndarray:
+    """Apply rotations about the up axis (T, 3, 3) to horizontal vectors (T, 2)."""
+    full = np.zeros((hv.shape[0], 3))
+    full[:, [a for a in range(3) if a != UP_AXIS]] = hv
+    out = np.einsum("tij,tj->ti", R, full)
+    return out[:, [a for a in range(3) if a != UP_AXIS]]
+
+
+def _heading_axis(motions, mover: int) -> int:
+    """The mover's local axis that stays closest to horizontal over the training motions."""
+    idx, orders = motions[0].skeleton.rotation_layout()
+    if len(orders[mover]) != 3:
+        raise BayesmotionError(f"root_mode='heading' needs three rotation channels on "
+                               f"{motions[0].skeleton.names[mover]!r}, it has {orders[mover]!r}")
+    R = np.concatenate([_euler_matrices(orders[mover], m.values[:, idx[mover]])
+                        for m in motions])
+    return int(np.argmin(np.mean(np.abs(R[:, UP_AXIS, :]), axis=0)))
 
 
 def check_layout(expected: Skeleton, got: Skeleton) -> None:
