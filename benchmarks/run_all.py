@@ -43,6 +43,7 @@ BENCHMARKS = [
     "blas_threads",
     "study_interpolation",
     "bandai_inference",
+    "infer_speed",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 

@@ -75,3 +75,84 @@ def test_unknown_couple_is_inferred_with_the_emotion(handshake_model, handshake_
         couple_mean = ep.couple_samples.reshape(-1, len(ep.couple_levels)).mean(0)
         assert ep.couple_levels[int(np.argmax(couple_mean))] == couple
         assert ep.label == emotion, str(ep)
+
+
+def _posterior_from(samples):
+    from bayesmotion.infer import EmotionPosterior
+
+    s = np.asarray(samples)[None]
+    return EmotionPosterior(("a", "b", "c"), s, {}, np.zeros(s.shape[:2]))
+
+
+def test_credible_region_matches_the_chi_square_quantile():
+    """For Gaussian samples the q region is the ellipsoid at the chi-square(K-1) q quantile."""
+    from scipy.stats import chi2
+
+    rng = np.random.default_rng(0)
+    L = np.array([[0.05, 0.0], [-0.03, 0.04]])
+    mu = np.array([0.6, 0.3])
+    first = mu + rng.standard_normal((200_000, 2)) @ L.T
+    ep = _posterior_from(np.c_[first, 1 - first.sum(1)])
+    direction = L @ np.array([np.cos(0.7), np.sin(0.7)])
+    for q in (0.5, 0.9):
+        for r2, inside in ((chi2.ppf(q - 0.03, 2), True), (chi2.ppf(q + 0.03, 2), False)):
+            x = mu + np.sqrt(r2) * direction
+            assert ep.region_contains(np.r_[x, 1 - x.sum()], q) is inside, (q, r2)
+    # a vertex is inside only when the posterior reaches it
+    assert not ep.region_contains([1.0, 0.0, 0.0], 0.9)
+    wide = _posterior_from(rng.dirichlet([6.0, 1.0, 1.0], size=50_000))
+    assert wide.region_contains([1.0, 0.0, 0.0], 0.9)
+    assert not wide.region_contains([0.0, 0.0, 1.0], 0.9)
+    with pytest.raises(bm.BayesmotionError, match="3 entries"):
+        ep.region_contains([1.0, 0.0], 0.9)
+
+
+def test_label_set_is_the_smallest_set_holding_q():
+    rng = np.random.default_rng(1)
+    n = np.array([70, 25, 5])  # argmax counts: a 70%, b 25%, c 5%
+    rows = [np.eye(3)[k] * 0.5 + 0.5 / 3 for k in np.repeat(np.arange(3), n)]
+    ep = _posterior_from(rng.permutation(np.array(rows)))
+    np.testing.assert_allclose(ep.probabilities, [0.70, 0.25, 0.05])
+    assert ep.label_set(0.5) == ("a",)
+    assert ep.label_set(0.9) == ("a", "b")
+    assert ep.label_set(0.96) == ("a", "b", "c")
+
+
+@pytest.mark.parametrize("couple_free", [False, True])
+def test_style_expansion_equals_the_direct_clip_density(handshake_model, handshake_data,
+                                                        couple_free):
+    """The expanded density (one O(N^2) precomputation per clip) is the clip log-density."""
+    import jax.numpy as jnp
+
+    from bayesmotion.clip import clip_poses
+    from bayesmotion.infer import _init_latents, _style_setup
+    from bayesmotion.infer_density import (clip_log_density, expanded_log_density,
+                                           style_expansion)
+
+    m = handshake_model
+    trial = handshake_data[0]
+    Ys = clip_poses(m, trial)
+    T, B = Ys[0].shape[0], 32
+    mask = jnp.asarray(np.arange(B) < T)
+    Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
+    fixed, conc, inferred = _style_setup(m, None if couple_free else trial.labels["couple"],
+                                         None)
+    X, I = _init_latents(m, Ys, B)
+    rng = np.random.default_rng(3)
+    lat = {"X": jnp.asarray(X + 0.1 * rng.standard_normal(X.shape)),
+           "I": jnp.asarray(I + 0.1 * rng.standard_normal(I.shape))}
+    free = {f: len(m.levels[f]) for f in inferred}
+    assert ("couple" in free) == couple_free
+    spec = m.spec
+    args = dict(int_factors=tuple(spec.interaction_factors),
+                dyn_factors=tuple(spec.dynamics_factors))
+    P = m.predictor()
+    E = style_expansion(P, lat, Yp, mask, fixed, free, init_var=float(spec.priors.init_var),
+                        **args)
+    conc_j = {k: jnp.asarray(v) for k, v in conc.items()}
+    for _ in range(3):
+        u = {"u:" + f: jnp.asarray(rng.normal(0, 1.5, K - 1)) for f, K in free.items()}
+        direct = clip_log_density(P, {**lat, **u}, Yp, mask, fixed, conc_j,
+                                  init_var=float(spec.priors.init_var), **args)
+        fast = expanded_log_density(E, u, conc_j, free, **args)
+        np.testing.assert_allclose(float(fast), float(direct), rtol=1e-9)

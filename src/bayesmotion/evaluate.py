@@ -71,9 +71,13 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         baselines: also run the affective-feature classifier and a mean-pose nearest neighbour
             on the same folds.
     Returns:
-        dict: per-trial true/pred labels, means, probabilities, interval coverage; accuracy and
-        its binomial sd; confusion matrix (percent, Taubert layout); coverage; baseline accuracies;
-        seconds.
+        dict: per-trial true/pred labels, means, probabilities, coverage; accuracy and its
+        binomial sd; confusion matrix (percent, Taubert layout); baseline accuracies; seconds.
+        Three coverages of the true label's coordinates (a vertex of the simplex) at level ``q``:
+        ``coverage``, by the credible region (:meth:`EmotionPosterior.region_contains`);
+        ``label_set_coverage``, the true label inside the smallest set of levels holding
+        probability ``q``; ``interval_coverage``, every coordinate inside its equal-tailed
+        interval -- 0 by construction for a posterior on the open simplex, kept for reference.
     """
     from .model import HGPDM
 
@@ -96,7 +100,9 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         lo, hi = ep.interval(q)
         rows.append({"trial": held.name, "true": held.labels["emotion"], "pred": ep.label,
                      "mean": ep.mean.tolist(), "probabilities": ep.probabilities.tolist(),
-                     "covered": bool(np.all((truth >= lo) & (truth <= hi))),
+                     "covered": ep.region_contains(truth, q),
+                     "label_set": list(ep.label_set(q)),
+                     "intervals_cover": bool(np.all((truth >= lo) & (truth <= hi))),
                      "true_coordinate_interval": [float(lo[levels.index(held.labels["emotion"])]),
                                                   float(hi[levels.index(held.labels["emotion"])])]})
     true = [r["true"] for r in rows]
@@ -109,6 +115,8 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         "accuracy_sd": float(np.sqrt(acc * (1 - acc) / len(rows))),
         "confusion_percent": confusion_matrix(true, pred, levels).tolist(),
         "coverage": float(np.mean([r["covered"] for r in rows])),
+        "label_set_coverage": float(np.mean([r["true"] in r["label_set"] for r in rows])),
+        "interval_coverage": float(np.mean([r["intervals_cover"] for r in rows])),
         "credible_level": q,
         "refit_iter": refit_iter,
     }

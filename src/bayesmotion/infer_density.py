@@ -15,11 +15,18 @@ many lengths share one compiled function.
 
 from __future__ import annotations
 
+import itertools
+from typing import NamedTuple
+
 import jax.numpy as jnp
 import numpy as np
+from jax.scipy.linalg import solve_triangular
+
+from . import kernels
 
 from .params import style_log_jacobian, style_to_simplex
 from .predict import (
+    LayerFit,
     Predictor,
     noise_variances,
     predict_bottom,
@@ -86,4 +93,108 @@ def clip_log_density(P, params, Ys, mask, fixed, concentration, int_factors, dyn
                      init_var):
     b, i, d = clip_terms(P, params, Ys, mask, fixed, int_factors, dyn_factors, init_var)
     total = b + i + d + style_log_prior(params, concentration)
+    return jnp.where(jnp.isnan(total), -jnp.inf, total)
+
+
+class _Expanded(NamedTuple):
+    """One layer's clip-frame predictive as a function of the free styles' coefficients c."""
+
+    outputs: jnp.ndarray  # (B', D) what the layer predicts (X concat, or I_t)
+    G: jnp.ndarray  # (P, B', D)
+    H: jnp.ndarray  # (B', P, P)
+    base: jnp.ndarray  # (B',) prior variance with every free style of unit norm
+    noise: jnp.ndarray
+    weight: jnp.ndarray  # (B',) mask
+
+
+class StyleExpansion(NamedTuple):
+    """Everything :func:`expanded_log_density` needs: a pytree (jit/vmap friendly)."""
+
+    const: jnp.ndarray  # bottom term + the dynamics prior of the first frames
+    inter: _Expanded
+    dyn: _Expanded
+
+
+def _combos(factors, free: dict):
+    """One-hot style combinations of the free factors among ``factors`` (itertools order)."""
+    names = [f for f in factors if f in free]
+    return names, list(itertools.product(*[range(free[f]) for f in names]))
+
+
+def _expand(kernel_at, fit: LayerFit, factors, free: dict, fixed: dict, n: int):
+    names, combos = _combos(factors, free)
+    kx = []
+    for combo in combos:
+        styles = [jnp.eye(free[f])[combo[names.index(f)]] if f in free else jnp.asarray(fixed[f])
+                  for f in factors]
+        kx.append(kernel_at([jnp.broadcast_to(v, (n, v.shape[0])) for v in styles]))
+    kx = jnp.stack(kx)  # (P, M, n)
+    P, M, _ = kx.shape
+    G = jnp.einsum("pmn,md->pnd", kx, fit.A)
+    V = solve_triangular(fit.L, jnp.moveaxis(kx, 0, 1).reshape(M, P * n), lower=True)
+    V = V.reshape(M, P, n)
+    return G, jnp.einsum("mpn,mqn->npq", V, V)
+
+
+def style_expansion(P: Predictor, params: dict, Ys, mask, fixed: dict, free: dict,
+                    int_factors, dyn_factors, init_var: float) -> StyleExpansion:
+    """Precompute the clip's density as a function of its free styles, latents held fixed.
+
+    Args:
+        params: {"X", "I"} the clip's latents (padded).
+        free: {factor: K_f} the styles left free (sampled).
+        fixed: the other factors' style vectors.
+    """
+    X, I = params["X"], params["I"]
+    B = I.shape[0]
+    m = mask.astype(I.dtype)
+    noise = noise_variances(P)
+    bottom = 0.0
+    for a, Y in enumerate(Ys):
+        mu, var = predict_bottom(P, a, X[a])
+        bottom = bottom + jnp.sum(m * _normal(Y, mu, var + noise["Y"]))
+    unit = lambda factors, n: [jnp.broadcast_to(
+        jnp.eye(free[f])[0] if f in free else jnp.asarray(fixed[f]),
+        (n, free[f] if f in free else len(fixed[f]))) for f in factors]
+    Z = jnp.concatenate([X[a] for a in range(X.shape[0])], axis=1)
+    G, H = _expand(lambda S: kernels.interaction_kernel(P.I, I, list(P.int_style), S, P.beta),
+                   P.inter, int_factors, free, fixed, B)
+    base = jnp.ones(B)
+    for s in unit(int_factors, B):
+        base = base * jnp.sum(s * s, -1)
+    inter = _Expanded(Z, G, H, base * P.beta[0], noise["X"], m)
+    o = P.dyn_lags.shape[0]
+    lags = jnp.stack([I[o - l:B - l] for l in range(1, o + 1)])
+    G, H = _expand(lambda S: kernels.dynamics_kernel(list(P.dyn_lags), list(lags),
+                                                     list(P.dyn_style), S, P.alpha),
+                   P.dyn, dyn_factors, free, fixed, B - o)
+    base = kernels.dynamics_diag(list(lags), unit(dyn_factors, B - o), P.alpha)
+    dyn = _Expanded(I[o:], G, H, base, noise["I"], m[o:])
+    first = I[:o]
+    prior = -0.5 * jnp.sum(first**2) / init_var - 0.5 * first.size * (
+        LOG_2PI + jnp.log(init_var))
+    return StyleExpansion(bottom + prior, inter, dyn)
+
+
+def _layer_term(E: _Expanded, c, norm2):
+    mean = jnp.einsum("p,pnd->nd", c, E.G)
+    var = jnp.maximum(E.base * norm2 - jnp.einsum("npq,p,q->n", E.H, c, c), 0.0)
+    return jnp.sum(E.weight * _normal(E.outputs, mean, var + E.noise))
+
+
+def expanded_log_density(E: StyleExpansion, params: dict, concentration: dict, free: dict,
+                         int_factors, dyn_factors):
+    """:func:`clip_log_density` at the free styles ``params["u:<f>"]`` from an expansion."""
+    styles = {f: style_to_simplex(params["u:" + f][None])[0] for f in free}
+
+    def coeffs(factors):
+        names, _ = _combos(factors, free)
+        c, norm2 = jnp.ones(1), 1.0
+        for f in names:
+            c = jnp.kron(c, styles[f])
+            norm2 = norm2 * jnp.sum(styles[f] ** 2)
+        return c, norm2
+
+    total = (E.const + _layer_term(E.inter, *coeffs(int_factors))
+             + _layer_term(E.dyn, *coeffs(dyn_factors)) + style_log_prior(params, concentration))
     return jnp.where(jnp.isnan(total), -jnp.inf, total)

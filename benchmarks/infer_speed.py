@@ -1,0 +1,95 @@
+"""Seconds per clip of emotion inference, and where they go.
+
+    python benchmarks/infer_speed.py [--quick]
+
+The model is the demo's: ``HGPDM()`` fitted by MAP on the built-in handshakes at 10 fps without
+its four held-out trials (one per emotion). ``infer_emotion`` then reads each held-out trial
+(20 frames, both actors, couple given) with its default settings (16 walkers, 600 steps, a
+third discarded). The first call includes JAX compilation and is reported apart; the others
+are timed one by one, with the effective sample size of the emotion posterior (samples kept /
+the largest integrated autocorrelation time) and the split of each call into encoding, MAP
+projection of the latents, their Laplace sd and emcee sampling. The issue's target: under 2 s
+per clip for a posterior with ESS >= 400.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+from _common import RESULTS, headline, machine_info, write_json  # noqa: E402
+
+NAME = "infer_speed"
+TARGET_S = 2.0
+FULL = {"fps": 10.0, "max_iter": 150, "repeats": 2}
+QUICK = {"fps": 10.0, "max_iter": 20, "repeats": 1}
+
+
+def run(quick: bool) -> dict:
+    import numpy as np
+
+    from bayesmotion.datasets import load_handshakes
+    from bayesmotion.demo import _split
+    from bayesmotion.infer import infer_emotion
+    from bayesmotion.model import HGPDM
+
+    cfg = QUICK if quick else FULL
+    train, held = _split(load_handshakes(fps=cfg["fps"]))
+    t = time.perf_counter()
+    model = HGPDM().fit(train, max_iter=cfg["max_iter"], progress=False)
+    fit_s = time.perf_counter() - t
+
+    def once(trial, seed):
+        t = time.perf_counter()
+        ep = infer_emotion(model, trial, couple=trial.labels["couple"], seed=seed)
+        return time.perf_counter() - t, ep
+
+    first_s, _ = once(held[0], 0)
+    calls = []
+    for r in range(cfg["repeats"]):
+        for trial in held:
+            s, ep = once(trial, r + 1)
+            calls.append({"trial": trial.name, "seconds": s, "ess": ep.info["ess"],
+                          "label": ep.label, "true": trial.labels["emotion"],
+                          "stage_seconds": ep.info["stage_seconds"],
+                          "map_iterations": ep.info["map_iterations"]})
+    sec = np.array([c["seconds"] for c in calls])
+    ess = np.array([c["ess"] for c in calls])
+    stages = {k: float(np.median([c["stage_seconds"][k] for c in calls]))
+              for k in calls[0]["stage_seconds"]}
+    worst = max(stages, key=stages.get)
+    med = float(np.median(sec))
+    rows = [
+        headline(f"infer_emotion, seconds per clip (median of {len(calls)})", med, "s",
+                 f"< {TARGET_S:g} s with ESS >= 400",
+                 None if quick else bool(med < TARGET_S and ess.min() >= 400),
+                 f"min ESS {ess.min():.0f}; largest part: {worst} {stages[worst]:.2f} s"),
+        headline("  first call on a model (incl. compilation)", first_s, "s"),
+    ]
+    return {"settings": {**cfg, "n_train_trials": len(train), "n_frames": held[0].n_frames},
+            "fit_seconds": fit_s, "first_call_seconds": first_s, "calls": calls,
+            "median_stage_seconds": stages, "headline": rows}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="a barely fitted model, one repeat")
+    a = ap.parse_args(argv)
+    import bayesmotion  # noqa: F401  (float64 on)
+
+    res = run(a.quick)
+    write_json(RESULTS / f"{NAME}.json", {"name": NAME, "mode": "quick" if a.quick else "full",
+                                          **res, "status": "ok", "machine": machine_info()})
+    for h in res["headline"]:
+        print(h)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
