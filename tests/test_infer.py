@@ -126,8 +126,7 @@ def test_style_expansion_equals_the_direct_clip_density(handshake_model, handsha
 
     from bayesmotion.clip import clip_poses
     from bayesmotion.infer import _init_latents, _style_setup
-    from bayesmotion.infer_density import (clip_log_density, expanded_log_density,
-                                           style_expansion)
+    from bayesmotion.infer_density import clip_log_density, expanded_log_density, style_expansion
 
     m = handshake_model
     trial = handshake_data[0]

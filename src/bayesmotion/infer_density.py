@@ -23,7 +23,6 @@ import numpy as np
 from jax.scipy.linalg import solve_triangular
 
 from . import kernels
-
 from .params import style_log_jacobian, style_to_simplex
 from .predict import (
     LayerFit,
