@@ -53,3 +53,20 @@ def test_bandai_walks_one_actor_fit_converges(bandai_root):
     # less than 1% of the total decrease
     tail = trace[int(0.9 * len(trace)):]
     assert (tail[0] - tail[-1]) < 0.01 * (d["initial_objective"] - d["objective"])
+    # generation in the default "heading" root mode: the rollout walks (the root travels at the
+    # pace of the real clip, within a factor of 3) and its position variance is finite
+    from bayesmotion.data.representation import find_mover
+
+    assert m.codecs[0].root_mode == "heading"
+    k = next(i for i, t in enumerate(walks) if t.labels["emotion"] == "happy"
+             and t.labels["content"] == "walk")
+    clip = walks[k]
+    r = m.generate(emotion="happy", start=k, n_frames=clip.n_frames)
+    j = find_mover([clip.actors[0]])
+    speed = lambda p: np.mean(np.linalg.norm(np.diff(p[:, j, [0, 2]], axis=0), axis=-1))
+    real = speed(clip.actors[0].positions())
+    gen = speed(r.positions[0])
+    print(f"root speed per frame: generated {gen:.2f}, real {real:.2f}")
+    assert np.all(np.isfinite(r.positions)) and np.all(np.isfinite(r.positions_var))
+    assert np.all(r.positions_var >= 0)
+    assert real / 3 < gen < 3 * real

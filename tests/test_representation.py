@@ -116,3 +116,15 @@ def test_heading_mode_needs_horizontal_translation():
     m = bm.Motion(sk, np.random.default_rng(0).normal(size=(20, 4)), 25.0)
     with pytest.raises(bm.BayesmotionError, match="horizontal position"):
         PoseCodec.fit([m], root_mode="heading")
+
+
+def test_mover_is_the_joint_that_walks_not_one_that_glitches(bandai_root):
+    """Bandai's joint_Root sits at the origin except for a jump in a few frames of one clip;
+    Hips carries the walk."""
+    walks = bm.load_bandai(bandai_root, content=["walk-back"], fps=7.5)
+    motions = [t.actors[0] for t in walks]
+    root = [np.ptp(m.values[:, :3], axis=0).max() for m in motions]
+    assert max(root) > 50  # the glitch is in the data
+    from bayesmotion.data.representation import find_mover
+
+    assert motions[0].skeleton.names[find_mover(motions)] == "Hips"

@@ -231,10 +231,10 @@ def decode_actor(model, actor: int, Y, Y_var, trial: int):
     sk = model.skeleton(actor, trial)
     T = Y.shape[0]
     motion = codec.decode(np.asarray(Y), _anchor(model, codec, trial, actor, T), sk, model.fps)
-    var = np.zeros_like(motion.values)
+    # model-space columns ("heading" appends a heading-rate column after the C channels)
     full = np.zeros((T, codec.constant.size))
     full[:, codec.keep] = np.asarray(Y_var)[:, None] * codec.scale**2
-    var = full[:, :var.shape[1]]
+    var = full[:, :motion.values.shape[1]]
     if codec.root_mode in ("velocity", "heading"):
         # positions integrate velocities: variances add up (the heading's own uncertainty is
         # not propagated into the path: first order, heading treated as known)

@@ -68,19 +68,23 @@ def _root_horizontal_columns(skeleton: Skeleton, mover: int = 0) -> np.ndarray:
 
 
 def find_mover(motions) -> int:
-    """The first joint whose horizontal position channels change over ``motions`` (0 if none).
+    """The joint whose horizontal position channels travel the most (0 when none moves).
 
-    BVH exporters differ: CMU translates the root, Bandai keeps a static ``joint_Root`` and
-    translates ``Hips`` below it."""
+    BVH exporters differ: CMU translates the root, Bandai keeps a ``joint_Root`` at the origin
+    and translates ``Hips`` below it. "Travel" is the median frame-to-frame horizontal step,
+    summed over the motions, so that a joint which jumps in a few glitched frames (Bandai's
+    ``joint_Root`` does, in one clip) is not taken for the one that walks."""
     sk = motions[0].skeleton
+    best, best_step = 0, 0.0
     for j in range(sk.n_joints):
         h = _root_horizontal_columns(sk, j)
         if h.size == 0:
             continue
-        v = np.concatenate([m.values[:, h] for m in motions])
-        if np.any(v.max(0) - v.min(0) > 1e-9 * (1.0 + np.abs(v).max())):
-            return j
-    return 0
+        step = sum(float(np.median(np.linalg.norm(np.diff(m.values[:, h], axis=0), axis=-1)))
+                   for m in motions if m.n_frames > 1)
+        if step > best_step:
+            best, best_step = j, step
+    return best
 
 
 def _euler_matrices(order: str, degrees: np.ndarray) -> np.ndarray:
