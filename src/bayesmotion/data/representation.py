@@ -34,7 +34,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal, NamedTuple
 
 import numpy as np
@@ -148,6 +148,12 @@ class PoseCodec:
         heading_axis: ("heading" only) the mover's local axis whose horizontal direction defines
             its heading: the axis closest to horizontal in the training data. The transformed
             channel space then has one extra last column, the heading's rate (deg/s).
+        branch: per transformed column, the reference angle (degrees; NaN for non-rotation
+            columns) that picks each clip's 360-degree branch: a clip's unwrapped angle is
+            shifted by whole turns so that its mean lies within 180 degrees of the reference,
+            the circular mean of the training data. Unwrapping alone keeps one clip continuous
+            but leaves two clips of the same pose a turn apart (Bandai's Hips near +-180 deg).
+            None (files written before it existed): no shift.
     """
 
     skeleton: Skeleton
@@ -159,6 +165,7 @@ class PoseCodec:
     scaling: str = "type"
     mover: int = 0
     heading_axis: int = -1
+    branch: np.ndarray | None = None
 
     @property
     def dim(self) -> int:
@@ -207,8 +214,18 @@ class PoseCodec:
         width = sk.n_channels + (root_mode == "heading")
         proto = cls(sk, root_mode, np.arange(width), np.zeros(width), np.zeros(width),
                     np.ones(width), scaling, mover, axis)
-        raw = np.concatenate([proto._transform(m, None if partners is None else partners[i])[0]
-                              for i, m in enumerate(motions)])
+        def transformed(codec):
+            return np.concatenate([codec._transform(m, None if partners is None
+                                                    else partners[i])[0]
+                                   for i, m in enumerate(motions)])
+
+        raw = transformed(proto)
+        rot = proto._kinds() == 0
+        rad = np.deg2rad(raw[:, rot])
+        branch = np.full(width, np.nan)
+        branch[rot] = np.rad2deg(np.arctan2(np.sin(rad).mean(0), np.cos(rad).mean(0)))
+        proto = replace(proto, branch=branch)
+        raw = transformed(proto)
         rng = raw.max(0) - raw.min(0)
         keep = np.flatnonzero(rng > 1e-9 * (1.0 + np.abs(raw).max(0)))
         kept = raw[:, keep]
@@ -222,7 +239,7 @@ class PoseCodec:
             for k in np.unique(kind):
                 sel = kind == k
                 scale[sel] = np.sqrt(np.mean(std[sel] ** 2)) or 1.0
-        return cls(sk, root_mode, keep, raw[0].copy(), mean, scale, scaling, mover, axis)
+        return cls(sk, root_mode, keep, raw[0].copy(), mean, scale, scaling, mover, axis, branch)
 
     def _kinds(self) -> np.ndarray:
         """(C[+1],) 0 for rotation channels, 1 for root horizontal, 2 for other positions,
@@ -247,6 +264,14 @@ class PoseCodec:
 
     # ------------------------------------------------------------- transforms
     def _transform(self, motion: Motion, partner: Motion | None):
+        v, anchor = self._untangled(motion, partner)
+        if self.branch is not None:
+            rot = np.isfinite(self.branch)
+            turns = np.round((v[:, rot].mean(0) - self.branch[rot]) / 360.0)
+            v[:, rot] -= 360.0 * turns
+        return v, anchor
+
+    def _untangled(self, motion: Motion, partner: Motion | None):
         v = _unwrap(motion.values, self._rotation_mask())
         h = self.horizontal_columns()
         if self.root_mode == "heading":
@@ -336,8 +361,11 @@ class PoseCodec:
 
     # ---------------------------------------------------------- serialisation
     def to_arrays(self, prefix: str) -> dict[str, np.ndarray]:
-        return {f"{prefix}keep": self.keep, f"{prefix}constant": self.constant,
-                f"{prefix}mean": self.mean, f"{prefix}scale": self.scale}
+        out = {f"{prefix}keep": self.keep, f"{prefix}constant": self.constant,
+               f"{prefix}mean": self.mean, f"{prefix}scale": self.scale}
+        if self.branch is not None:
+            out[f"{prefix}branch"] = self.branch
+        return out
 
     def to_meta(self) -> dict:
         return {"root_mode": self.root_mode, "scaling": self.scaling, "mover": self.mover,
@@ -349,7 +377,9 @@ class PoseCodec:
                    np.asarray(arrays[f"{prefix}keep"], dtype=int),
                    np.asarray(arrays[f"{prefix}constant"]), np.asarray(arrays[f"{prefix}mean"]),
                    np.asarray(arrays[f"{prefix}scale"]), meta.get("scaling", "type"),
-                   int(meta.get("mover", 0)), int(meta.get("heading_axis", -1)))
+                   int(meta.get("mover", 0)), int(meta.get("heading_axis", -1)),
+                   np.asarray(arrays[f"{prefix}branch"]) if f"{prefix}branch" in arrays
+                   else None)
 
 
 def _rotate_horizontal(R: np.ndarray, hv: np.ndarray) -> np.ndarray:
