@@ -174,7 +174,9 @@ def _cmd_evaluate(a):
     ds = load_data(a.data, m.fps)
     res = leave_one_out(ds, m, refit_iter=a.refit_iter)
     print(format_confusion(res))
-    print(f"credible-interval coverage ({res['credible_level']:.0%}): {res['coverage']:.2f}")
+    print(f"coverage of the true label at {res['credible_level']:.0%}: credible region "
+          f"{res['coverage']:.2f}, label set {res['label_set_coverage']:.2f}, all coordinate "
+          f"intervals {res['interval_coverage']:.2f}")
     if "baselines" in res:
         print("baselines: " + ", ".join(f"{k} {v:.2f}" for k, v in res["baselines"].items()))
     if a.json:

@@ -236,8 +236,11 @@ def decode_actor(model, actor: int, Y, Y_var, trial: int):
     full[:, codec.keep] = np.asarray(Y_var)[:, None] * codec.scale**2
     var = full[:, :motion.values.shape[1]]
     if codec.root_mode in ("velocity", "heading"):
-        # positions integrate velocities: variances add up (the heading's own uncertainty is
-        # not propagated into the path: first order, heading treated as known)
+        # positions integrate velocities: variances add up. Approximations: the two velocity
+        # columns share one variance (exact with scaling="type", where they share one scale, so
+        # rotating body-frame velocity to the world leaves it unchanged); in "heading" mode the
+        # heading's own uncertainty (integrated turn-rate variance) is not propagated into the
+        # path or the mover's rotation, whose variance is that of its heading-free angles
         h = codec.horizontal_columns(sk)
         var[:, h] = np.concatenate([np.zeros((1, h.size)),
                                     np.cumsum(var[1:, h], 0) / model.fps**2])

@@ -98,25 +98,6 @@ def _style_hessian(x, E, conc, int_factors, dyn_factors, free):
     return jax.hessian(_style_logp)(x, E, conc, int_factors, dyn_factors, free)
 
 
-def _laplace_start(x0, hess, W, rng, log_prob):
-    """W walkers from the Laplace approximation N(x0, (-H)^-1), its variances capped at 1 (in
-    stick-breaking units: beyond that the style is barely identified and the quadratic
-    approximation means little); a small ball when -H is not positive definite (the
-    projection stopped short of the style optimum). Walkers that land where the density is not
-    finite are redrawn from the small ball."""
-    ball = lambda n: x0 + 0.05 * rng.standard_normal((n, x0.size))
-    w, V = np.linalg.eigh(-0.5 * (np.asarray(hess) + np.asarray(hess).T))
-    laplace = bool(np.all(np.isfinite(w)) and w.min() > 0)
-    if laplace:
-        sd = np.sqrt(np.minimum(1.0 / w, 1.0))
-        p0 = x0 + (rng.standard_normal((W, x0.size)) * sd) @ V.T
-    else:
-        p0 = ball(W)
-    bad = ~np.isfinite(np.asarray(log_prob(p0)))
-    p0[bad] = ball(int(bad.sum()))
-    return p0, laplace
-
-
 @dataclass(eq=False)
 class EmotionPosterior:
     """Posterior over a clip's emotion coordinates (and couple style when it was inferred).
@@ -392,13 +373,17 @@ def _infer_one(model, P, clip, frames, couple, prior, seed, n_walkers, n_steps, 
     W = max(n_walkers, 2 * ndim + 2)
     W += W % 2
     sty = (E, conc_j, statics["int_factors"], statics["dyn_factors"], free)
-    from .posterior import _in_halves
+    from .posterior import _in_halves, capped_covariance, draw_start
 
     def log_prob(xs):  # in emcee's half-ensemble chunks: one compilation
         return _in_halves(lambda x: _style_logp_batch(x, *sty), xs, W)
 
-    p0, laplace = _laplace_start(x0, _style_hessian(jnp.asarray(x0), *sty), W,
-                                 np.random.default_rng(seed), log_prob)
+    # Laplace start; variances capped at 1 in stick-breaking units (beyond that the style is
+    # barely identified and the quadratic approximation means little)
+    cov = capped_covariance(-np.asarray(_style_hessian(jnp.asarray(x0), *sty)), 1.0)
+    p0 = draw_start(lambda x: _style_logp_batch(x, *sty), x0, cov, W,
+                    np.random.default_rng(seed))
+    stage("expand")
 
     # differential-evolution moves from a Laplace start: autocorrelation ~7 steps here, against
     # ~20 for the default stretch move from a ball (measured on the demo's held-out trials)
@@ -423,8 +408,7 @@ def _infer_one(model, P, clip, frames, couple, prior, seed, n_walkers, n_steps, 
             "acceptance": float(np.mean(sampler.acceptance_fraction)),
             "map_objective": float(res.fun), "map_iterations": int(res.nit),
             "n_samples": int(chain.shape[0] * chain.shape[1]),
-            "ess": float(chain.shape[0] * chain.shape[1] / np.max(tau)),
-            "laplace_start": laplace}
+            "ess": float(chain.shape[0] * chain.shape[1] / np.max(tau))}
     lat = {"X": np.asarray(latents["X"])[:, :T], "I": np.asarray(latents["I"])[:T], **sd}
     cl = "couple" in styles
     return EmotionPosterior(tuple(model.levels["emotion"]), styles["emotion"], lat,

@@ -48,6 +48,21 @@ def styles_from(params: dict, fixed: dict, factors) -> list[jnp.ndarray]:
             else jnp.asarray(fixed[f]) for f in factors]
 
 
+def _bottom_term(P: Predictor, X, Ys, m):
+    noise = noise_variances(P)["Y"]
+    bottom = 0.0
+    for a, Y in enumerate(Ys):
+        mu, var = predict_bottom(P, a, X[a])
+        bottom = bottom + jnp.sum(m * _normal(Y, mu, var + noise))
+    return bottom
+
+
+def _start_prior(first, init_var: float):
+    """log N of the first ``order`` frames under the chain's restart prior N(0, v0 I)."""
+    return -0.5 * jnp.sum(first**2) / init_var - 0.5 * first.size * (
+        LOG_2PI + jnp.log(init_var))
+
+
 def clip_terms(P: Predictor, params: dict, Ys, mask, fixed: dict, int_factors, dyn_factors,
                init_var: float):
     """The three layer terms of the clip's log-density (scalars)."""
@@ -55,10 +70,7 @@ def clip_terms(P: Predictor, params: dict, Ys, mask, fixed: dict, int_factors, d
     B = I.shape[0]
     m = mask.astype(I.dtype)
     noise = noise_variances(P)
-    bottom = 0.0
-    for a, Y in enumerate(Ys):
-        mu, var = predict_bottom(P, a, X[a])
-        bottom = bottom + jnp.sum(m * _normal(Y, mu, var + noise["Y"]))
+    bottom = _bottom_term(P, X, Ys, m)
     s_int = [jnp.broadcast_to(s, (B, s.shape[0])) for s in styles_from(params, fixed, int_factors)]
     mu, var = predict_interaction(P, I, s_int)
     Z = jnp.concatenate([X[a] for a in range(X.shape[0])], axis=1)
@@ -68,10 +80,7 @@ def clip_terms(P: Predictor, params: dict, Ys, mask, fixed: dict, int_factors, d
     s_dyn = [jnp.broadcast_to(s, (B - o, s.shape[0]))
              for s in styles_from(params, fixed, dyn_factors)]
     mu, var = predict_dynamics(P, lags, s_dyn)
-    dyn = jnp.sum(m[o:] * _normal(I[o:], mu, var + noise["I"]))
-    first = I[:o]
-    dyn = dyn - 0.5 * jnp.sum(first**2) / init_var - 0.5 * first.size * (
-        LOG_2PI + jnp.log(init_var))
+    dyn = jnp.sum(m[o:] * _normal(I[o:], mu, var + noise["I"])) + _start_prior(I[:o], init_var)
     return bottom, inter, dyn
 
 
@@ -148,10 +157,6 @@ def style_expansion(P: Predictor, params: dict, Ys, mask, fixed: dict, free: dic
     B = I.shape[0]
     m = mask.astype(I.dtype)
     noise = noise_variances(P)
-    bottom = 0.0
-    for a, Y in enumerate(Ys):
-        mu, var = predict_bottom(P, a, X[a])
-        bottom = bottom + jnp.sum(m * _normal(Y, mu, var + noise["Y"]))
     unit = lambda factors, n: [jnp.broadcast_to(
         jnp.eye(free[f])[0] if f in free else jnp.asarray(fixed[f]),
         (n, free[f] if f in free else len(fixed[f]))) for f in factors]
@@ -169,10 +174,7 @@ def style_expansion(P: Predictor, params: dict, Ys, mask, fixed: dict, free: dic
                    P.dyn, dyn_factors, free, fixed, B - o)
     base = kernels.dynamics_diag(list(lags), unit(dyn_factors, B - o), P.alpha)
     dyn = _Expanded(I[o:], G, H, base, noise["I"], m[o:])
-    first = I[:o]
-    prior = -0.5 * jnp.sum(first**2) / init_var - 0.5 * first.size * (
-        LOG_2PI + jnp.log(init_var))
-    return StyleExpansion(bottom + prior, inter, dyn)
+    return StyleExpansion(_bottom_term(P, X, Ys, m) + _start_prior(I[:o], init_var), inter, dyn)
 
 
 def _layer_term(E: _Expanded, c, norm2):

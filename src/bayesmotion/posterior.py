@@ -118,9 +118,33 @@ class Target:
                        - np.asarray(grad(jnp.asarray(centre - e)))) / (2 * h)
         if not np.all(np.isfinite(H)):
             raise BayesmotionError("the Hessian at the conditional MAP is not finite")
-        w, V = np.linalg.eigh(0.5 * (H + H.T))
-        var = np.where(w > 1.0 / 9.0, 1.0 / np.maximum(w, 1e-300), 9.0)
-        return (V * var) @ V.T
+        return capped_covariance(H, 9.0)
+
+
+def capped_covariance(H, max_var: float) -> np.ndarray:
+    """The inverse of a negative-log-density Hessian ``H``, direction by direction: directions
+    where ``H`` is not positive definite (a saddle, a flat ridge) or flatter than ``1/max_var``
+    get the variance ``max_var``."""
+    w, V = np.linalg.eigh(0.5 * (np.asarray(H) + np.asarray(H).T))
+    var = np.where(w > 1.0 / max_var, 1.0 / np.maximum(w, 1e-300), max_var)
+    return (V * var) @ V.T
+
+
+def draw_start(logp_batch, centre, cov, n: int, rng) -> np.ndarray:
+    """``n`` points from N(centre, cov); points whose density is not finite are redrawn closer
+    to the centre (at 1/2, 1/4, 1/10 of the spread, then the centre itself).
+
+    Args:
+        logp_batch: (n, d) -> (n,) log-density, evaluated in half-ensemble chunks.
+    """
+    L = np.linalg.cholesky(cov + 1e-12 * np.eye(centre.size))
+    p = centre + rng.standard_normal((n, centre.size)) @ L.T
+    for shrink in (0.5, 0.25, 0.1, 0.0):
+        bad = ~np.isfinite(_in_halves(logp_batch, p, n))
+        if not bad.any():
+            break
+        p[bad] = centre + shrink * rng.standard_normal((bad.sum(), centre.size)) @ L.T
+    return p
 
 
 def _in_halves(batch_fn, xs, n_walkers: int) -> np.ndarray:
@@ -139,14 +163,7 @@ def _start_points(target, centre, n, init, ball, rng):
         return centre + ball * rng.standard_normal((n, centre.size))
     if init != "laplace":
         raise BayesmotionError(f"init must be 'laplace' or 'ball', got {init!r}")
-    L = np.linalg.cholesky(target.laplace(centre) + 1e-12 * np.eye(centre.size))
-    p = centre + rng.standard_normal((n, centre.size)) @ L.T
-    for shrink in (0.5, 0.25, 0.1, 0.0):
-        bad = ~np.isfinite(_in_halves(target.logp_batch, p, n))
-        if not bad.any():
-            break
-        p[bad] = centre + shrink * rng.standard_normal((bad.sum(), centre.size)) @ L.T
-    return p
+    return draw_start(target.logp_batch, centre, target.laplace(centre), n, rng)
 
 
 def _flat_names(params: dict) -> list[str]:

@@ -170,6 +170,16 @@ def _np_axis_rotation(axis: str, rad: np.ndarray) -> np.ndarray:
     return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
 
 
+def euler_matrices(order: str, degrees: np.ndarray) -> np.ndarray:
+    """(T, 3, 3) rotations of BVH Euler angles (T, len(order)) applied in channel ``order``
+    (R = R_order[0] R_order[1] ...), NumPy float64."""
+    degrees = np.asarray(degrees, dtype=np.float64)
+    R = np.broadcast_to(np.eye(3), (degrees.shape[0], 3, 3))
+    for k, axis in enumerate(order):
+        R = R @ _np_axis_rotation(axis, np.deg2rad(degrees[:, k]))
+    return R
+
+
 def numpy_positions(skeleton: Skeleton, values: np.ndarray, with_end_sites=False) -> np.ndarray:
     """FK in NumPy (float64, vectorised over frames): no compilation, for data handling.
 
@@ -182,9 +192,7 @@ def numpy_positions(skeleton: Skeleton, values: np.ndarray, with_end_sites=False
     parents, rot_idx, orders, pos_idx, end_joints = layout_key(skeleton)
     Rw, pw = [], []
     for j, parent in enumerate(parents):
-        R = np.broadcast_to(np.eye(3), (v.shape[0], 3, 3))
-        for k, axis in enumerate(orders[j]):
-            R = R @ _np_axis_rotation(axis, np.deg2rad(v[:, rot_idx[j][k]]))
+        R = euler_matrices(orders[j], v[:, list(rot_idx[j][:len(orders[j])])])
         t = np.tile(skeleton.offsets[j], (v.shape[0], 1))
         for a in range(3):
             if pos_idx[j][a] >= 0:

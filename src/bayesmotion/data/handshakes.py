@@ -14,7 +14,6 @@ from importlib import resources
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import BayesmotionError
 from .bvh import parse_bvh
@@ -31,6 +30,7 @@ from .emotion import (
     resample_at,
     scale_amplitude,
 )
+from .fk import euler_matrices
 from .motion import Motion, MotionDataset, Trial
 
 EMOTIONS = ("neutral", "happy", "angry", "sad")
@@ -97,7 +97,7 @@ def hand_positions(motion: Motion, joint: str = HAND) -> np.ndarray:
         p = p + np.einsum("tij,tj->ti", R, t)
         if orders[j]:  # upper case: intrinsic, R = R_order[0] R_order[1] ...
             n = len(orders[j])
-            R = R @ Rotation.from_euler(orders[j], v[:, rot_idx[j, :n]], degrees=True).as_matrix()
+            R = R @ euler_matrices(orders[j], v[:, rot_idx[j, :n]])
     return p
 
 

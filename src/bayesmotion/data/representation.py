@@ -38,8 +38,10 @@ from dataclasses import dataclass, replace
 from typing import Literal, NamedTuple
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..errors import BayesmotionError, SkeletonMismatchError
+from .fk import _np_axis_rotation, euler_matrices
 from .motion import Motion
 from .skeleton import ROTATION_CHANNELS, Skeleton
 
@@ -72,8 +74,9 @@ def find_mover(motions) -> int:
 
     BVH exporters differ: CMU translates the root, Bandai keeps a ``joint_Root`` at the origin
     and translates ``Hips`` below it. "Travel" is the median frame-to-frame horizontal step,
-    summed over the motions, so that a joint which jumps in a few glitched frames (Bandai's
-    ``joint_Root`` does, in one clip) is not taken for the one that walks."""
+    summed over the motions, so that a joint which moves in a few clips only is not taken for
+    the one that walks in all (Bandai's ``joint_Root`` sits at the origin in every walk but the
+    short walk-back normal one, where it carries the translation)."""
     sk = motions[0].skeleton
     best, best_step = 0, 0.0
     for j in range(sk.n_joints):
@@ -87,28 +90,15 @@ def find_mover(motions) -> int:
     return best
 
 
-def _euler_matrices(order: str, degrees: np.ndarray) -> np.ndarray:
-    """(T, 3, 3) rotation of BVH Euler angles (T, 3) applied in channel ``order``."""
-    from .fk import _np_axis_rotation
-
-    R = np.broadcast_to(np.eye(3), (degrees.shape[0], 3, 3))
-    for k, axis in enumerate(order):
-        R = R @ _np_axis_rotation(axis, np.deg2rad(degrees[:, k]))
-    return R
-
-
 def _matrices_to_euler(order: str, R: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`_euler_matrices` (intrinsic Tait-Bryan), unwrapped in time."""
-    from scipy.spatial.transform import Rotation
-
+    """Inverse of :func:`bayesmotion.data.fk.euler_matrices` (intrinsic Tait-Bryan), unwrapped
+    in time."""
     e = Rotation.from_matrix(R).as_euler(order.upper(), degrees=True)
     return np.unwrap(e, period=360.0, axis=0)
 
 
 def _yaw(angle: np.ndarray) -> np.ndarray:
     """(T, 3, 3) rotations about the up axis by ``angle`` radians."""
-    from .fk import _np_axis_rotation
-
     return _np_axis_rotation("XYZ"[UP_AXIS], angle)
 
 
@@ -140,7 +130,7 @@ class PoseCodec:
         skeleton: reference skeleton (channel layout; offsets used by default when decoding).
         root_mode: how the root's horizontal translation is represented (module docstring).
         keep: (D,) channel columns kept in Y (in the transformed channel space).
-        constant: (C,) values restored for dropped channels.
+        constant: (C,) values restored for dropped channels ((C + 1,) in "heading" mode).
         mean: (D,) per-channel mean of the kept channels.
         scale: (D,) per-channel scale of the kept channels.
         scaling: "type" or "channel" (how ``scale`` was chosen).
@@ -298,8 +288,12 @@ class PoseCodec:
             raise BayesmotionError("root_mode='heading' needs both horizontal position "
                                    "channels on the moving joint")
         cols, order = self._mover_rotation(self.skeleton)
-        R = _euler_matrices(order, v[:, cols])
-        psi = _horizontal_angle(R[:, :, self.heading_axis])
+        R = euler_matrices(order, v[:, cols])
+        # measured from the axis's rest direction, so that the rotation left after removing the
+        # heading stays near the rest pose (from +X instead, a local Z axis would leave a fixed
+        # quarter turn: gimbal lock for Bandai's Hips, 180 deg jumps per frame)
+        rest = _horizontal_angle(np.eye(3)[self.heading_axis][None])[0]
+        psi = _horizontal_angle(R[:, :, self.heading_axis]) - rest
         un_yaw = _yaw(-psi)
         v[:, cols] = _matrices_to_euler(order, un_yaw @ R)
         vel = np.diff(v[:, h], axis=0, prepend=v[:1, h]) * fps
@@ -318,7 +312,7 @@ class PoseCodec:
         psi = a[2] + np.concatenate([[0.0], np.cumsum(np.deg2rad(v[1:, -1]) / fps)])
         yaw = _yaw(psi)
         v = v[:, :-1]
-        v[:, cols] = _matrices_to_euler(order, yaw @ _euler_matrices(order, v[:, cols]))
+        v[:, cols] = _matrices_to_euler(order, yaw @ euler_matrices(order, v[:, cols]))
         vel = _rotate_horizontal(yaw, v[:, h])
         v[:, h] = np.concatenate([a[None, :2], a[:2] + np.cumsum(vel[1:] / fps, 0)])
         return v
@@ -335,8 +329,8 @@ class PoseCodec:
 
         Args:
             Y: (T, D) model-space poses.
-            anchor: from :meth:`encode`; ``None`` places a "velocity" root at the training
-                origin and a "partner" root around a fixed midpoint of zero.
+            anchor: from :meth:`encode`; ``None`` places a "velocity" or "heading" root at the
+                origin (heading 0) and a "partner" root around a fixed midpoint of zero.
             skeleton: skeleton whose offsets to use (defaults to the codec's).
             fps: frame rate of the result (also converts velocities back to positions).
         """
@@ -396,7 +390,7 @@ def _heading_axis(motions, mover: int) -> int:
     if len(orders[mover]) != 3:
         raise BayesmotionError(f"root_mode='heading' needs three rotation channels on "
                                f"{motions[0].skeleton.names[mover]!r}, it has {orders[mover]!r}")
-    R = np.concatenate([_euler_matrices(orders[mover], m.values[:, idx[mover]])
+    R = np.concatenate([euler_matrices(orders[mover], m.values[:, idx[mover]])
                         for m in motions])
     return int(np.argmin(np.mean(np.abs(R[:, UP_AXIS, :]), axis=0)))
 
