@@ -38,6 +38,12 @@ def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
     # the diagonal: the share of each intended emotion inferred correctly
     hits = [np.mean([p == t for t, p in zip(true, pred, strict=True) if t == e]) for e in levels]
     np.testing.assert_allclose(np.diag(C), 100 * np.asarray(hits))
+    # the coverages are the per-clip flags averaged
+    assert r["coverage"] == pytest.approx(np.mean([t["covered"] for t in r["trials"]]))
+    assert r["label_set_coverage"] == pytest.approx(
+        np.mean([t["true"] in t["label_set"] for t in r["trials"]]))
+    assert r["interval_coverage"] == pytest.approx(
+        np.mean([t["intervals_cover"] for t in r["trials"]]))
     assert set(r["baselines"]) == {"affective_features", "mean_pose_nn"}
     assert [h["metric"].strip()[:6] for h in saved["headline"]] == \
         ["H-GPDM", "affect", "mean-p", "second"]

@@ -77,7 +77,9 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         ``coverage``, by the credible region (:meth:`EmotionPosterior.region_contains`);
         ``label_set_coverage``, the true label inside the smallest set of levels holding
         probability ``q``; ``interval_coverage``, every coordinate inside its equal-tailed
-        interval -- 0 by construction for a posterior on the open simplex, kept for reference.
+        interval -- almost always 0 for a one-hot truth (equal-tailed intervals of a
+        posterior on the open simplex reach 0 or 1 only when samples underflow to the vertex),
+        kept for reference.
     """
     from .model import HGPDM
 
