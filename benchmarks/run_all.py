@@ -44,6 +44,7 @@ BENCHMARKS = [
     "study_interpolation",
     "bandai_inference",
     "infer_speed",
+    "handshake_inference",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 

@@ -136,7 +136,7 @@ def test_style_expansion_equals_the_direct_clip_density(handshake_model, handsha
     Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
     fixed, conc, inferred = _style_setup(m, None if couple_free else trial.labels["couple"],
                                          None)
-    X, I = _init_latents(m, Ys, B)
+    X, I, _ = _init_latents(m, Ys, B)
     rng = np.random.default_rng(3)
     lat = {"X": jnp.asarray(X + 0.1 * rng.standard_normal(X.shape)),
            "I": jnp.asarray(I + 0.1 * rng.standard_normal(I.shape))}

@@ -218,7 +218,21 @@ def _init_latents(model, Ys, B):
     pad = B - T
     X = np.concatenate([X, np.repeat(X[:, -1:], pad, 1)], 1)
     I = np.concatenate([I, np.repeat(I[-1:], pad, 0)], 0)
-    return X, I
+    return X, I, nearest
+
+
+def _style_start(model, factor: str, conc, nearest) -> np.ndarray:
+    """Start of a free style on the simplex: 0.85 on the level most of the nearest training
+    frames have (0.15 spread over the others), so that the start matches its latents.
+
+    From the prior mean (a uniform mix, which scales every style-weighted prediction down)
+    the projection settled in mixed-style optima: on the built-in handshakes, couple c2's own
+    training trials read as neutral in 7 of 8 cases after 200 L-BFGS iterations."""
+    K = conc.size
+    level = np.argmax(model.data.onehot[factor], 1)[model.data.trial_of_frame[nearest]]
+    v = np.full(K, 0.15 / max(K - 1, 1))
+    v[np.bincount(level, minlength=K).argmax()] = 0.85
+    return v
 
 
 def _style_setup(model, couple, prior):
@@ -339,10 +353,12 @@ def _infer_one(model, P, clip, frames, couple, prior, seed, n_walkers, n_steps, 
     mask = jnp.asarray(np.arange(B) < T)
     Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
     fixed, conc, inferred = _style_setup(model, couple, prior)
-    X0, I0 = _init_latents(model, Ys, B)
+    X0, I0, nearest = _init_latents(model, Ys, B)
     params = {"X": jnp.asarray(X0), "I": jnp.asarray(I0)}
     for f in inferred:
-        params["u:" + f] = simplex_to_style(conc[f][None] / conc[f].sum())[0]
+        start = (_style_start(model, f, conc[f], nearest) if f in model.data.onehot
+                 else conc[f] / conc[f].sum())
+        params["u:" + f] = simplex_to_style(jnp.asarray(start)[None])[0]
     statics = {"int_factors": tuple(model.spec.interaction_factors),
                "dyn_factors": tuple(model.spec.dynamics_factors),
                "init_var": float(model.spec.priors.init_var)}
