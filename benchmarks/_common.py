@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import json
 import os
@@ -190,3 +191,19 @@ def synthetic_model_data(n_frames: int, d: int = 96, seed: int = 0, trial_len: i
         Ys.append(smooth_outputs(X, d, rng))
     tof = np.repeat(np.arange(n_trials), lengths)
     return ModelData(tuple(Ys), onehot, tof, lengths)
+
+
+def standalone_main(name: str, run: Callable[[bool], dict], doc: str, quick_help: str,
+                    show: Callable[[dict], str]) -> int:
+    """Command line of a benchmark module: ``--quick``, run, JSON to ``results/<name>.json``
+    (atomic), print ``show(result)``."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help=quick_help)
+    a = ap.parse_args()
+    import bayesmotion  # noqa: F401  (float64 on)
+
+    res = run(a.quick)
+    write_json(RESULTS / f"{name}.json", {"name": name, "mode": "quick" if a.quick else "full",
+                                          **res, "status": "ok", "machine": machine_info()})
+    print(show(res))
+    return 0

@@ -13,7 +13,6 @@ in 80-98% of trials. The JSON is written atomically to ``results/handshake_infer
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -22,7 +21,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from _common import RESULTS, headline, machine_info, write_json  # noqa: E402
+from _common import headline, standalone_main  # noqa: E402
 
 NAME = "handshake_inference"
 FULL = {"fps": 10.0, "couples": None, "max_iter": 300, "refit_iter": 100, "n_steps": 150}
@@ -61,17 +60,9 @@ def run(quick: bool) -> dict:
         "result": res, "confusion_table": format_confusion(res), "headline": rows}
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="couple c1 only, short fits")
-    a = ap.parse_args(argv)
-    import bayesmotion  # noqa: F401  (float64 on)
-
-    res = run(a.quick)
-    write_json(RESULTS / f"{NAME}.json", {"name": NAME, "mode": "quick" if a.quick else "full",
-                                          **res, "status": "ok", "machine": machine_info()})
-    print(res["confusion_table"])
-    return 0
+def main() -> int:
+    return standalone_main(NAME, run, __doc__, "couple c1 only, short fits",
+                           lambda r: r["confusion_table"])
 
 
 if __name__ == "__main__":

@@ -15,7 +15,6 @@ per clip for a posterior with ESS >= 400.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -24,7 +23,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from _common import RESULTS, headline, machine_info, write_json  # noqa: E402
+from _common import headline, standalone_main  # noqa: E402
 
 NAME = "infer_speed"
 TARGET_S = 2.0
@@ -78,18 +77,9 @@ def run(quick: bool) -> dict:
             "median_stage_seconds": stages, "headline": rows}
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="a barely fitted model, one repeat")
-    a = ap.parse_args(argv)
-    import bayesmotion  # noqa: F401  (float64 on)
-
-    res = run(a.quick)
-    write_json(RESULTS / f"{NAME}.json", {"name": NAME, "mode": "quick" if a.quick else "full",
-                                          **res, "status": "ok", "machine": machine_info()})
-    for h in res["headline"]:
-        print(h)
-    return 0
+def main() -> int:
+    return standalone_main(NAME, run, __doc__, "a barely fitted model, one repeat",
+                           lambda r: "\n".join(map(str, r["headline"])))
 
 
 if __name__ == "__main__":
