@@ -204,18 +204,14 @@ class PoseCodec:
         width = sk.n_channels + (root_mode == "heading")
         proto = cls(sk, root_mode, np.arange(width), np.zeros(width), np.zeros(width),
                     np.ones(width), scaling, mover, axis)
-        def transformed(codec):
-            return np.concatenate([codec._transform(m, None if partners is None
-                                                    else partners[i])[0]
-                                   for i, m in enumerate(motions)])
-
-        raw = transformed(proto)
+        parts = [proto._untangled(m, None if partners is None else partners[i])[0]
+                 for i, m in enumerate(motions)]
         rot = proto._kinds() == 0
-        rad = np.deg2rad(raw[:, rot])
+        rad = np.deg2rad(np.concatenate(parts)[:, rot])
         branch = np.full(width, np.nan)
         branch[rot] = np.rad2deg(np.arctan2(np.sin(rad).mean(0), np.cos(rad).mean(0)))
         proto = replace(proto, branch=branch)
-        raw = transformed(proto)
+        raw = np.concatenate([proto._on_branch(v) for v in parts])
         rng = raw.max(0) - raw.min(0)
         keep = np.flatnonzero(rng > 1e-9 * (1.0 + np.abs(raw).max(0)))
         kept = raw[:, keep]
@@ -245,21 +241,20 @@ class PoseCodec:
         return (self._kinds() == 0)[:self.skeleton.n_channels]
 
     def _mover_rotation(self, skeleton: Skeleton):
-        idx, orders = skeleton.rotation_layout()
-        order = orders[self.mover]
-        if len(order) != 3:
-            raise BayesmotionError(f"root_mode='heading' needs three rotation channels on "
-                                   f"{skeleton.names[self.mover]!r}, it has {order!r}")
-        return idx[self.mover], order
+        return _mover_rotation(skeleton, self.mover)
 
     # ------------------------------------------------------------- transforms
     def _transform(self, motion: Motion, partner: Motion | None):
         v, anchor = self._untangled(motion, partner)
+        return self._on_branch(v), anchor
+
+    def _on_branch(self, v: np.ndarray) -> np.ndarray:
+        """Shift each rotation column of one clip by whole turns towards ``branch``."""
         if self.branch is not None:
             rot = np.isfinite(self.branch)
             turns = np.round((v[:, rot].mean(0) - self.branch[rot]) / 360.0)
             v[:, rot] -= 360.0 * turns
-        return v, anchor
+        return v
 
     def _untangled(self, motion: Motion, partner: Motion | None):
         v = _unwrap(motion.values, self._rotation_mask())
@@ -384,14 +379,19 @@ def _rotate_horizontal(R: np.ndarray, hv: np.ndarray) -> np.ndarray:
     return out[:, [a for a in range(3) if a != UP_AXIS]]
 
 
-def _heading_axis(motions, mover: int) -> int:
-    """The mover's local axis that stays closest to horizontal over the training motions."""
-    idx, orders = motions[0].skeleton.rotation_layout()
+def _mover_rotation(skeleton: Skeleton, mover: int):
+    """Rotation channel columns and Euler order of the moving joint ("heading" needs three)."""
+    idx, orders = skeleton.rotation_layout()
     if len(orders[mover]) != 3:
         raise BayesmotionError(f"root_mode='heading' needs three rotation channels on "
-                               f"{motions[0].skeleton.names[mover]!r}, it has {orders[mover]!r}")
-    R = np.concatenate([euler_matrices(orders[mover], m.values[:, idx[mover]])
-                        for m in motions])
+                               f"{skeleton.names[mover]!r}, it has {orders[mover]!r}")
+    return idx[mover], orders[mover]
+
+
+def _heading_axis(motions, mover: int) -> int:
+    """The mover's local axis that stays closest to horizontal over the training motions."""
+    cols, order = _mover_rotation(motions[0].skeleton, mover)
+    R = np.concatenate([euler_matrices(order, m.values[:, cols]) for m in motions])
     return int(np.argmin(np.mean(np.abs(R[:, UP_AXIS, :]), axis=0)))
 
 
