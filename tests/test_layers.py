@@ -8,7 +8,7 @@ from jax.test_util import check_grads
 from scipy.stats import multivariate_normal
 
 import bayesmotion  # noqa: F401  (float64)
-from bayesmotion import kernels, layers
+from bayesmotion import kernels, layers, linalg
 
 
 def dense_loglik(K, Y):
@@ -136,3 +136,43 @@ def test_non_positive_definite_gives_minus_inf_not_nan():
     K = -jnp.eye(4)
     val = layers.gaussian_loglik(K, jnp.ones((4, 2)))
     assert val == -jnp.inf
+
+
+@pytest.mark.parametrize("n", [1, 7, 16, 33, 130])
+def test_blocked_inverses_match_numpy(rng, n):
+    A = rng.normal(size=(n, n))
+    K = A @ A.T / n + np.eye(n)
+    L = np.linalg.cholesky(K)
+    # block 8 makes every size above it recurse, with uneven halves for the odd ones
+    np.testing.assert_allclose(linalg.triangular_inverse(jnp.asarray(L), block=8),
+                               np.linalg.inv(L), rtol=1e-10, atol=1e-12)
+    Kinv = np.asarray(linalg.cholesky_inverse(jnp.asarray(L), block=8))
+    np.testing.assert_allclose(Kinv, np.linalg.inv(K), rtol=1e-10, atol=1e-12)
+    np.testing.assert_array_equal(Kinv, Kinv.T)
+
+
+@pytest.mark.parametrize("jitter", [0.0, 1e-3])
+def test_hand_written_gplvm_gradient_equals_autodiff_of_generic_layer(rng, jitter):
+    """gplvm_loglik's own VJP against autodiff of gaussian_loglik on the same kernel, for every
+    argument (latents, outputs, hyperparameters, jitter), at N large enough to recurse."""
+    X, Y = rng.normal(size=(150, 3)), rng.normal(size=(150, 4))
+    g = jnp.array([1.3, 0.8, 30.0])
+
+    def generic(X, Y, g, j):
+        return layers.gaussian_loglik(kernels.bottom_kernel(X, X, g) + jnp.eye(len(X)) / g[2],
+                                      Y, j)
+
+    args = (jnp.asarray(X), jnp.asarray(Y), g, jnp.asarray(jitter))
+    v_ref, g_ref = jax.value_and_grad(generic, argnums=(0, 1, 2, 3))(*args)
+    v, grads = jax.jit(jax.value_and_grad(layers.gplvm_loglik, argnums=(0, 1, 2, 3)))(*args)
+    np.testing.assert_allclose(float(v), float(v_ref), rtol=1e-11)
+    for a, b in zip(grads, g_ref, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-8, atol=1e-9 * float(jnp.max(jnp.abs(b))))
+
+
+def test_gplvm_outside_support_is_minus_inf_with_zero_gradient(rng):
+    X, Y = rng.normal(size=(6, 2)), rng.normal(size=(6, 2))
+    g = jnp.array([1.0, 0.5, -0.5])  # noise variance -2: K is not positive definite
+    v, (dX, dg) = jax.value_and_grad(layers.gplvm_loglik, argnums=(0, 2))(X, Y, g)
+    assert v == -jnp.inf
+    assert np.all(np.asarray(dX) == 0) and np.all(np.asarray(dg) == 0)

@@ -9,9 +9,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.linalg import cho_solve, solve_triangular
+from jax.scipy.linalg import solve_triangular
 
 from . import kernels
+from .linalg import lower_gram, triangular_inverse
 
 LOG_2PI = float(np.log(2 * np.pi))
 
@@ -33,8 +34,8 @@ def gaussian_loglik(K: jnp.ndarray, Y: jnp.ndarray, jitter=0.0) -> jnp.ndarray:
     """sum_d log N(Y[:, d] | 0, K): D independent columns sharing one covariance (eq. 1).
 
     log p = -D/2 log|K| - 1/2 tr(K^-1 Y Y^T) - N D/2 log 2 pi, with log|K| = 2 sum log diag L
-    and tr(K^-1 Y Y^T) = sum(Y * cho_solve(L, Y)). The gradient is written by hand
-    (:func:`_loglik_chol`), not traced through the Cholesky factorisation.
+    and tr(K^-1 Y Y^T) = |L^-1 Y|^2. The gradient is written by hand (:func:`_loglik_bwd`), not
+    traced through the Cholesky factorisation.
 
     Args:
         K: (N, N) covariance. Y: (N, D) outputs.
@@ -44,35 +45,58 @@ def gaussian_loglik(K: jnp.ndarray, Y: jnp.ndarray, jitter=0.0) -> jnp.ndarray:
     return _loglik_chol(K + (jitter * scale) * jnp.eye(n, dtype=K.dtype), Y)
 
 
+def _factor(K):
+    """(L, ok): a failed factorisation is NaN throughout (jax.lax.linalg.cholesky), so the
+    diagonal tells."""
+    L = jnp.linalg.cholesky(K)
+    return L, jnp.all(jnp.isfinite(jnp.diag(L)))
+
+
+def _value(quad, L, N, D, ok):
+    val = -0.5 * quad - D * jnp.sum(jnp.log(jnp.diag(L))) - 0.5 * N * D * LOG_2PI
+    return jnp.where(ok & jnp.isfinite(val), val, -jnp.inf)
+
+
+def _primal(L, Y, ok):
+    """The value alone: one triangular solve."""
+    return _value(jnp.sum(solve_triangular(L, Y, lower=True) ** 2), L, *Y.shape, ok)
+
+
+def _with_inverse(L, Y, ok):
+    """Under differentiation: L^-1 once, by blocks; it gives alpha = K^-1 Y here and K^-1 in
+    the VJP (:func:`_dlogp_dK`). Returns (value, L^-1, alpha)."""
+    Linv = triangular_inverse(L)
+    V = Linv @ Y
+    return _value(jnp.sum(V**2), L, *Y.shape, ok), Linv, Linv.T @ V
+
+
+def _dlogp_dK(Linv, alpha, ok):
+    """W = d logp / dK = (alpha alpha^T - D K^-1) / 2, zero outside the support."""
+    D = alpha.shape[1]
+    return jnp.where(ok, 0.5 * (alpha @ alpha.T - D * lower_gram(Linv)), 0.0)
+
+
 @jax.custom_vjp
 def _loglik_chol(K, Y):
-    return _loglik_fwd(K, Y)[0]
+    L, ok = _factor(K)
+    return _primal(L, Y, ok)
 
 
 def _loglik_fwd(K, Y):
-    N, D = Y.shape
-    L = jnp.linalg.cholesky(K)
-    ok = jnp.all(jnp.isfinite(L))
-    L = jnp.where(ok, L, jnp.eye(N, dtype=K.dtype))
-    alpha = cho_solve((L, True), Y)
-    val = -0.5 * jnp.sum(Y * alpha) - D * jnp.sum(jnp.log(jnp.diag(L))) - 0.5 * N * D * LOG_2PI
-    ok = ok & jnp.isfinite(val)
-    return jnp.where(ok, val, -jnp.inf), (L, alpha, ok)
+    L, ok = _factor(K)
+    val, Linv, alpha = _with_inverse(L, Y, ok)
+    return val, (Linv, alpha, ok)
 
 
 def _loglik_bwd(res, g):
-    """d logp / dK = (alpha alpha^T - D K^-1) / 2 and d logp / dY = -alpha (alpha = K^-1 Y).
+    """d logp / dK = W and d logp / dY = -alpha (alpha = K^-1 Y).
 
-    K^-1 = L^-T L^-1 from one triangular solve and one product. Autodiff through
-    ``cholesky`` + ``cho_solve`` costs about twice as much (benchmarks/gplvm_vs_gpy.py).
-    Outside the support (failed factorisation) the value is -inf and the gradient zero.
+    K^-1 = L^-T L^-1 by blocks (:mod:`bayesmotion.linalg`). Autodiff through ``cholesky`` +
+    ``cho_solve`` costs about twice as much (benchmarks/gplvm_vs_gpy.py). Outside the support
+    (failed factorisation) the value is -inf and the gradient zero.
     """
-    L, alpha, ok = res
-    N, D = alpha.shape
-    Linv = solve_triangular(L, jnp.eye(N, dtype=L.dtype), lower=True)
-    dK = 0.5 * (alpha @ alpha.T - D * (Linv.T @ Linv))
-    g = jnp.where(ok, g, 0.0)
-    return g * dK, -g * alpha
+    Linv, alpha, ok = res
+    return g * _dlogp_dK(Linv, alpha, ok), -g * jnp.where(ok, alpha, 0.0)
 
 
 _loglik_chol.defvjp(_loglik_fwd, _loglik_bwd)
@@ -81,10 +105,62 @@ _loglik_chol.defvjp(_loglik_fwd, _loglik_bwd)
 def gplvm_loglik(X, Y, gamma, jitter=0.0):
     """Bottom layer: log p(Y | X, gamma), K_Y = gamma1 exp(-gamma2/2 |x-x'|^2) + gamma3^-1 I.
 
-    X: (N, Q) latents, Y: (N, D) poses, gamma: (3,) positive.
+    X: (N, Q) latents, Y: (N, D) poses, gamma: (3,) positive. Equal to
+    ``gaussian_loglik(bottom_kernel(X, X, gamma) + I / gamma3, Y, jitter)`` (tested), with the
+    gradient written out for this kernel (:func:`_rbf_gplvm_bwd`).
     """
-    K = kernels.bottom_kernel(X, X, gamma) + jnp.eye(X.shape[0]) / gamma[2]
-    return gaussian_loglik(K, Y, jitter)
+    dtype = jnp.result_type(X, Y, gamma, float)
+    return _rbf_gplvm(X, Y, gamma, jnp.asarray(jitter, dtype))
+
+
+def _rbf_gplvm_factor(X, gamma, jitter):
+    """(K_rbf, L, ok): the kernel without noise and the Cholesky factor of the noisy one."""
+    Kf = kernels.bottom_kernel(X, X, gamma)
+    # gaussian_loglik's jitter is relative to mean(diag K) = gamma1 + 1/gamma3
+    noise = 1.0 / gamma[2] + jitter * (gamma[0] + 1.0 / gamma[2])
+    return (Kf, *_factor(Kf + noise * jnp.eye(X.shape[0], dtype=Kf.dtype)))
+
+
+@jax.custom_vjp
+def _rbf_gplvm(X, Y, gamma, jitter):
+    _, L, ok = _rbf_gplvm_factor(X, gamma, jitter)
+    return _primal(L, Y, ok)
+
+
+def _rbf_gplvm_fwd(X, Y, gamma, jitter):
+    Kf, L, ok = _rbf_gplvm_factor(X, gamma, jitter)
+    val, Linv, alpha = _with_inverse(L, Y, ok)
+    return val, (X, gamma, jitter, Kf, Linv, alpha, ok)
+
+
+def _rbf_gplvm_bwd(res, g):
+    """The chain rule through the RBF kernel by hand, with W = d logp / dK:
+
+    W = (alpha alpha^T - D K^-1) / 2, G = W o K_rbf, r = G 1,
+    d/dX = -2 gamma2 (r o X - G X), d/dgamma1 = sum(G) / gamma1 + jitter tr W,
+    d/dgamma2 = -1/2 sum(G o |x - x'|^2) = -(r . |x|^2 - sum(X o G X)),
+    d/dgamma3 = -(1 + jitter) tr W / gamma3^2, d/dY = -alpha.
+
+    Autodiff of the same function makes about fifteen N x N passes (transposes, a scatter for
+    the diagonal, copies); this makes four, which is what puts this layer ahead of GPy
+    (benchmarks/gplvm_vs_gpy.py). Outside the support the gradient is zero.
+    """
+    X, gamma, jitter, Kf, Linv, alpha, ok = res
+    W = _dlogp_dK(Linv, alpha, ok)
+    alpha = jnp.where(ok, alpha, 0.0)
+    G = W * Kf
+    r = jnp.sum(G, axis=1)
+    GX = G @ X
+    trW = jnp.trace(W)
+    dX = -2.0 * gamma[1] * (r[:, None] * X - GX)
+    d_gamma = jnp.stack([jnp.sum(G) / gamma[0] + jitter * trW,
+                         -(jnp.sum(r * jnp.sum(X**2, axis=1)) - jnp.sum(X * GX)),
+                         -(1.0 + jitter) * trW / gamma[2] ** 2])
+    d_jitter = trW * (gamma[0] + 1.0 / gamma[2])
+    return g * dX, -g * alpha, g * d_gamma.astype(gamma.dtype), g * d_jitter
+
+
+_rbf_gplvm.defvjp(_rbf_gplvm_fwd, _rbf_gplvm_bwd)
 
 
 def style_gplvm_loglik(I, Z, S, beta, jitter=0.0):
