@@ -63,6 +63,26 @@ def test_array_clips_are_checked(tiny_model):
         bm.infer_emotion(tiny_model, np.stack([np.asarray(y)[:2] for y in tiny_model.data.Y]))
 
 
+def test_given_styles_are_checked(tiny_model, tiny_data):
+    trial = tiny_data[0]
+    with pytest.raises(bm.BayesmotionError, match="no style factor.*'content'"):
+        bm.infer_emotion(tiny_model, trial, styles={"content": "walk"})
+    with pytest.raises(bm.BayesmotionError, match="cannot be given"):
+        bm.infer_emotion(tiny_model, trial, styles={"emotion": "happy"})
+    with pytest.raises(bm.BayesmotionError, match="not both"):
+        bm.infer_emotion(tiny_model, trial, couple="c1", styles={"couple": "c1"})
+
+
+def test_style_setup_fixes_given_factors_and_infers_the_rest(handshake_model):
+    from bayesmotion.infer import _style_setup
+
+    fixed, conc, inferred = _style_setup(handshake_model, {"couple": "c2"}, None)
+    assert inferred == ["emotion"]
+    np.testing.assert_array_equal(fixed["couple"], [0.0, 1.0])
+    fixed, conc, inferred = _style_setup(handshake_model, {}, None)
+    assert sorted(inferred) == ["couple", "emotion"] and not fixed
+
+
 @pytest.mark.slow
 def test_unknown_couple_is_inferred_with_the_emotion(handshake_model, handshake_data):
     # From the prior-mean start alone the projection explained the neutral c1 trial as angry
@@ -118,9 +138,7 @@ def test_label_set_is_the_smallest_set_holding_q():
     assert ep.label_set(0.96) == ("a", "b", "c")
 
 
-@pytest.mark.parametrize("couple_free", [False, True])
-def test_style_expansion_equals_the_direct_clip_density(handshake_model, handshake_data,
-                                                        couple_free):
+def _check_expansion(m, trial, given, seed=3):
     """The expanded density (one O(N^2) precomputation per clip) is the clip log-density."""
     import jax.numpy as jnp
 
@@ -128,24 +146,21 @@ def test_style_expansion_equals_the_direct_clip_density(handshake_model, handsha
     from bayesmotion.infer import _init_latents, _style_setup
     from bayesmotion.infer_density import clip_log_density, expanded_log_density, style_expansion
 
-    m = handshake_model
-    trial = handshake_data[0]
     Ys = clip_poses(m, trial)
     T, B = Ys[0].shape[0], 32
     mask = jnp.asarray(np.arange(B) < T)
     Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
-    fixed, conc, inferred = _style_setup(m, None if couple_free else trial.labels["couple"],
-                                         None)
+    P = m.predictor()
+    fixed, conc, inferred = _style_setup(m, given, None)
+    fixed = {f: np.asarray(v) @ np.asarray(P.level_vectors[f]) for f, v in fixed.items()}
     X, I, _ = _init_latents(m, Ys, B)
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     lat = {"X": jnp.asarray(X + 0.1 * rng.standard_normal(X.shape)),
            "I": jnp.asarray(I + 0.1 * rng.standard_normal(I.shape))}
     free = {f: len(m.levels[f]) for f in inferred}
-    assert ("couple" in free) == couple_free
     spec = m.spec
     args = dict(int_factors=tuple(spec.interaction_factors),
                 dyn_factors=tuple(spec.dynamics_factors))
-    P = m.predictor()
     E = style_expansion(P, lat, Yp, mask, fixed, free, init_var=float(spec.priors.init_var),
                         **args)
     conc_j = {k: jnp.asarray(v) for k, v in conc.items()}
@@ -155,3 +170,41 @@ def test_style_expansion_equals_the_direct_clip_density(handshake_model, handsha
                                   init_var=float(spec.priors.init_var), **args)
         fast = expanded_log_density(E, u, conc_j, free, **args)
         np.testing.assert_allclose(float(fast), float(direct), rtol=1e-9)
+    return free
+
+
+@pytest.mark.parametrize("couple_free", [False, True])
+def test_style_expansion_equals_the_direct_clip_density(handshake_model, handshake_data,
+                                                        couple_free):
+    trial = handshake_data[0]
+    given = {} if couple_free else {"couple": trial.labels["couple"]}
+    free = _check_expansion(handshake_model, trial, given)
+    assert ("couple" in free) == couple_free
+
+
+@pytest.fixture(scope="module")
+def learned_style_model(tiny_data):
+    """The tiny model with its style vectors learned: level vectors are not one-hot."""
+    return bm.HGPDM(latent_dim=3, interaction_dim=3).fit(tiny_data, max_iter=30,
+                                                          optimize_style=True, progress=False)
+
+
+def test_learned_style_vectors_are_what_labels_mean(learned_style_model, tiny_data):
+    """With learned style vectors, a label given to generation or inference stands for its
+    learned vector (not the one-hot coordinates), and inference's coordinates are weights over
+    the levels' vectors -- the expansion must agree with the direct density there too."""
+    from bayesmotion.predict import style_vectors
+
+    m = learned_style_model
+    P = m.predictor()
+    V = np.asarray(P.level_vectors["emotion"])
+    assert not np.allclose(V, np.eye(2))
+    learned = m.styles()["emotion"]  # per training trial
+    for r, trial in enumerate(tiny_data):
+        k = m.levels["emotion"].index(trial.labels["emotion"])
+        (vec,) = style_vectors(P, ["emotion"], [np.eye(2)[k]])
+        np.testing.assert_allclose(vec, learned[r], rtol=1e-12)
+    _check_expansion(m, tiny_data[0], {})
+    roll = m.generate(emotion="sad", n_frames=8)
+    np.testing.assert_array_equal(roll.styles["emotion"][0], [0.0, 1.0])  # coordinates kept
+    assert np.all(np.isfinite(roll.positions))

@@ -97,6 +97,23 @@ def test_optimized_style_vectors_stay_on_the_simplex():
     assert list(np.argmax(s, 1)) == [0, 1, 0, 1]  # levels sorted: happy, sad
 
 
+def test_style_vectors_can_be_freed_per_factor():
+    ds = tiny_dataset(n_trials=4)
+    spec = HGPDM(latent_dim=2, interaction_dim=2)
+    m = spec.fit(ds, max_iter=40, optimize_style=("emotion",), progress=False)
+    assert [k for k in m.params if k.startswith("style:")] == ["style:emotion"]
+    # a warm start keeps the style vectors it brings instead of resetting them to the prior
+    # mean (one L-BFGS step moves them a little either way)
+    again = spec.fit(ds, max_iter=0, optimize_style=("emotion",), progress=False,
+                     init={"style:emotion": m.params["style:emotion"]})
+    fresh = spec.fit(ds, max_iter=0, optimize_style=("emotion",), progress=False)
+    gap = lambda f: np.max(np.abs(np.asarray(f.params["style:emotion"])
+                                  - np.asarray(m.params["style:emotion"])))
+    assert gap(again) < 0.1 * gap(fresh)
+    with pytest.raises(bm.BayesmotionError, match="content"):
+        spec.fit(ds, max_iter=5, optimize_style=("content",), progress=False)
+
+
 def test_escalating_jitter_is_used_and_reported():
     """A density that fails (-inf) below jitter 1e-4 still gets optimised, and it is reported."""
     def logp(p, jitter):

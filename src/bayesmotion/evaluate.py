@@ -22,12 +22,15 @@ from .baselines.classifier import (
 from .data.motion import MotionDataset
 from .errors import BayesmotionError
 from .infer import infer_emotion
+from .params import STYLE_PREFIX
 
 
 def _fold_init(full, keep: list[int]) -> dict:
     sl = full.trial_slices()
     rows = np.concatenate([np.arange(sl[r].start, sl[r].stop) for r in keep])
-    init = {k: v for k, v in full.params.items() if k.startswith("log_")}
+    # hyperparameters, and learned style vectors (the levels stay: datasets keep their level
+    # lists when trials are left out)
+    init = {k: v for k, v in full.params.items() if k.startswith(("log_", STYLE_PREFIX))}
     init["X"] = np.asarray(full.params["X"])[:, rows]
     init["I"] = np.asarray(full.params["I"])[rows]
     return init
@@ -58,7 +61,7 @@ def _baselines(dataset: MotionDataset, factor: str) -> dict:
 
 def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_iter: int = 100,
                   n_steps: int = 400, q: float = 0.9, baselines: bool = True, progress=False,
-                  seed: int = 0) -> dict:
+                  seed: int = 0, fit_kwargs: dict | None = None) -> dict:
     """Leave-one-trial-out emotion inference.
 
     Args:
@@ -70,6 +73,10 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         q: credible level whose coverage is reported.
         baselines: also run the affective-feature classifier and a mean-pose nearest neighbour
             on the same folds.
+        fit_kwargs: further options of every fit (e.g. ``optimize_style=("content",)``).
+
+    The held-out trial's labels of the model's other style factors (couple, content, ...) are
+    given to ``infer_emotion``; only its emotion is inferred.
     Returns:
         dict: per-trial true/pred labels, means, probabilities, coverage; accuracy and its
         binomial sd; confusion matrix (percent, Taubert layout); baseline accuracies; seconds.
@@ -87,16 +94,17 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         raise BayesmotionError("leave_one_out needs an 'emotion' label on every trial")
     t0 = time.perf_counter()
     spec = spec or (full_model.spec if full_model is not None else HGPDM())
+    fit_kwargs = dict(fit_kwargs or {})
     if full_model is None:
-        full_model = spec.fit(dataset, progress=progress, seed=seed)
+        full_model = spec.fit(dataset, progress=progress, seed=seed, **fit_kwargs)
     levels = list(dataset.levels["emotion"])
     rows = []
     for i, (train, held) in enumerate(dataset.leave_one_out()):
         keep = [r for r in range(len(dataset)) if r != i]
         fold = spec.fit(train, max_iter=refit_iter, progress=False, seed=seed,
-                        init=_fold_init(full_model, keep))
-        couple = held.labels.get("couple") if "couple" in fold.levels else None
-        ep = infer_emotion(fold, held, couple=couple, n_steps=n_steps, seed=seed + i,
+                        init=_fold_init(full_model, keep), **fit_kwargs)
+        given = {f: held.labels[f] for f in fold.spec.factors if f != "emotion"}
+        ep = infer_emotion(fold, held, styles=given, n_steps=n_steps, seed=seed + i,
                            latent_uncertainty=False)
         truth = np.eye(len(levels))[levels.index(held.labels["emotion"])]
         lo, hi = ep.interval(q)

@@ -12,7 +12,7 @@ from .optim import map_optimize
 from .params import STYLE_PREFIX, simplex_to_style
 
 
-def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool = False,
+def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tuple = False,
               max_iter: int = 1000, gtol: float = 1e-5, seed: int = 0,
               progress: bool = True, init: dict | None = None) -> FittedHGPDM:
     """Fit latents X, I and hyperparameters (gamma, beta, alpha) by MAP.
@@ -20,9 +20,11 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool = Fal
     Args:
         spec: model specification (defaults resolved against the dataset).
         dataset: training trials with labels for every style factor.
-        optimize_style: also optimise each training trial's style vectors on the simplex
-            (initialised at their Dirichlet prior mean around the label); otherwise they stay
-            one-hot.
+        optimize_style: also optimise the style vector of each level on the simplex
+            (initialised at their Dirichlet prior mean around the label, or at ``init``'s);
+            True for every factor, or the names of the factors to free (e.g. ``("content",)``:
+            Wang et al.'s learned content vectors, which let a held-out combination of content
+            and emotion borrow from the other contents); otherwise they stay one-hot.
         max_iter: L-BFGS iterations.
         gtol: projected-gradient tolerance for convergence.
         seed: seed of the initial perturbation (the fit is deterministic for a seed).
@@ -44,8 +46,9 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool = Fal
                 raise BayesmotionError(f"init[{k!r}] has shape {np.shape(v)}, this dataset "
                                        f"needs {np.shape(params0[k])}")
         params0.update({k: np.asarray(v) for k, v in init.items()})
-    if optimize_style:
-        for f, conc in logp.style_prior.concentration.items():
+    free = _free_factors(optimize_style, spec.factors)
+    for f, conc in logp.style_prior.concentration.items():
+        if f in free and STYLE_PREFIX + f not in (init or {}):
             mean = conc / conc.sum(1, keepdims=True)
             params0[STYLE_PREFIX + f] = np.asarray(simplex_to_style(mean))
     params, diag = map_optimize(logp, params0, max_iter=max_iter, gtol=gtol, progress=progress,
@@ -53,3 +56,14 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool = Fal
     return FittedHGPDM(spec=spec, params=params, codecs=codecs, levels=dict(dataset.levels),
                        data=data, trials=trial_records(dataset, codecs, spec.root_mode),
                        fps=dataset.fps, diagnostics=diag)
+
+
+def _free_factors(optimize_style, factors) -> tuple:
+    if isinstance(optimize_style, bool):
+        return tuple(factors) if optimize_style else ()
+    free = (optimize_style,) if isinstance(optimize_style, str) else tuple(optimize_style)
+    unknown = [f for f in free if f not in factors]
+    if unknown:
+        raise BayesmotionError(f"optimize_style names {unknown}, which the model does not use; "
+                               f"its style factors are {list(factors)}")
+    return free

@@ -36,6 +36,7 @@ from .predict import (
     predict_dynamics,
     predict_dynamics_mean,
     predict_interaction,
+    style_vectors,
 )
 
 
@@ -302,8 +303,9 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
             raise BayesmotionError(f"start must be a trial index, 'prior' or an array of shape "
                                    f"{(o, model.spec.interaction_dim)}, got {I0.shape}")
         r, desc = _start_trial(model, coords, None), "given latent state"
-    dyn_s = tuple(jnp.asarray(coords[f][o:]) for f in model.spec.dynamics_factors)
-    int_s = tuple(jnp.asarray(coords[f]) for f in model.spec.interaction_factors)
+    dyn_f, int_f = model.spec.dynamics_factors, model.spec.interaction_factors
+    dyn_s = tuple(style_vectors(P, dyn_f, [coords[f][o:] for f in dyn_f]))
+    int_s = tuple(style_vectors(P, int_f, [coords[f] for f in int_f]))
     key = jax.random.PRNGKey(seed)
     I_gen, I_var = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n_frames - o, False)
     I = np.concatenate([I0, np.asarray(I_gen)])

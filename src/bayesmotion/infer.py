@@ -236,15 +236,34 @@ def _style_start(model, factor: str, conc, nearest) -> np.ndarray:
     return v
 
 
-def _style_setup(model, couple, prior):
+def _given_styles(model, couple, styles) -> dict:
+    """The style factors the caller fixed: ``styles`` plus the ``couple`` shortcut."""
+    given = dict(styles or {})
+    if couple is not None:
+        if "couple" in given:
+            raise BayesmotionError("give the couple either as couple= or in styles=, not both")
+        given["couple"] = couple
+    if "emotion" in given:
+        raise BayesmotionError("the emotion is what infer_emotion infers; it cannot be given")
+    unknown = [f for f in given if f not in model.spec.factors]
+    if unknown:
+        raise BayesmotionError(f"the model has no style factor {unknown}; its factors are "
+                               f"{list(model.spec.factors)}")
+    return given
+
+
+def _style_setup(model, given: dict, prior):
     """Which factors are inferred, fixed vectors of the others, Dirichlet concentrations."""
+    from .generate import _coords
+
+    if "emotion" not in model.levels:
+        raise BayesmotionError("the model has no 'emotion' style factor")
     fixed, conc, inferred = {}, {}, []
     for f in model.spec.factors:
         K = len(model.levels[f])
-        given = couple if f == "couple" else None
         if K == 1:  # a single level: the style is trivially [1]
             fixed[f] = np.ones(1)
-        elif f == "emotion" or given is None:
+        elif f == "emotion" or f not in given:
             inferred.append(f)
             c = np.ones(K) if (f != "emotion" or prior is None) else np.asarray(prior, float)
             if c.shape != (K,) or np.any(c <= 0):
@@ -252,11 +271,7 @@ def _style_setup(model, couple, prior):
                                        f"over {list(model.levels[f])}")
             conc[f] = c
         else:
-            from .generate import _coords
-
-            fixed[f] = _coords(model, f, given)
-    if "emotion" not in model.levels:
-        raise BayesmotionError("the model has no 'emotion' style factor")
+            fixed[f] = _coords(model, f, given[f])
     return fixed, conc, inferred
 
 
@@ -279,27 +294,31 @@ def _lbfgs(params, args, statics, max_iter):
 
 
 def _project(params, args, statics, max_iter, inferred, conc):
-    """MAP projection. When the couple is inferred too, one start per couple level (its
-    style vector near that level's vertex) and the best optimum is kept: from the prior mean
-    the latents can settle in an optimum that explains the clip with the wrong couple *and*
-    the wrong emotion (a neutral c1 training trial came out angry, P = 0.75, from one start)."""
-    if "couple" not in inferred:
+    """MAP projection. When a style factor other than the emotion (the couple, say) is inferred
+    too, one start per level of the first such factor (its style vector near that level's
+    vertex) and the best optimum is kept: from the prior mean the latents can settle in an
+    optimum that explains the clip with the wrong couple *and* the wrong emotion (a neutral c1
+    training trial came out angry, P = 0.75, from one start)."""
+    others = [f for f in inferred if f != "emotion"]
+    if not others:
         return _lbfgs(params, args, statics, max_iter)
-    K = conc["couple"].size
+    f = others[0]
+    K = conc[f].size
     best = None
     for k in range(K):
         v = np.full(K, 0.1 / max(K - 1, 1))
         v[k] = 0.9
-        start = {**params, "u:couple": simplex_to_style(jnp.asarray(v)[None])[0]}
+        start = {**params, "u:" + f: simplex_to_style(jnp.asarray(v)[None])[0]}
         out = _lbfgs(start, args, statics, max_iter)
         if best is None or out[1].fun < best[1].fun:
             best = out
     return best
 
 
-def infer_emotion(model, clip, *, frames=None, couple=None, prior=None, method: str = "emcee",
-                  seed: int = 0, n_walkers: int = 64, n_steps: int = 150, n_draws: int = 4,
-                  max_iter: int = 200, latent_uncertainty: bool = True) -> EmotionPosterior:
+def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=None,
+                  method: str = "emcee", seed: int = 0, n_walkers: int = 64, n_steps: int = 150,
+                  n_draws: int = 4, max_iter: int = 200,
+                  latent_uncertainty: bool = True) -> EmotionPosterior:
     """Posterior over the emotion coordinates of an observed clip.
 
     Args:
@@ -307,6 +326,9 @@ def infer_emotion(model, clip, *, frames=None, couple=None, prior=None, method: 
         clip: a Trial, one or two Motions, BVH path(s), or model-space poses (T, D) / (A, T, D).
         frames: a slice or index array of frames to use (online inference: ``slice(0, k)``).
         couple: the clip's couple (label or coordinates); inferred when None.
+        styles: other style factors of the clip that are known, factor -> label or coordinates
+            (e.g. ``{"content": "walk-left"}``); a factor neither given nor the emotion is
+            inferred alongside it.
         prior: Dirichlet concentrations over the emotion levels (default flat, all ones).
         method: "emcee" (the only sampler for now; NUTS is used for the model posterior).
         seed: seeds the walkers.
@@ -320,18 +342,20 @@ def infer_emotion(model, clip, *, frames=None, couple=None, prior=None, method: 
 
     if method != "emcee":
         raise BayesmotionError(f"method must be 'emcee', got {method!r}")
+    given = _given_styles(model.model if isinstance(model, Posterior) else model, couple,
+                          styles)
     if isinstance(model, Posterior):
         idx = np.linspace(0, model.n_draws - 1, min(n_draws, model.n_draws)).astype(int)
-        parts = [_infer_one(model.model, model.predictor(int(i)), clip, frames, couple, prior,
+        parts = [_infer_one(model.model, model.predictor(int(i)), clip, frames, given, prior,
                             seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
                             latent_uncertainty and k == 0)
                  for k, i in enumerate(idx)]
         return _pool(parts)
-    return _infer_one(model, model.predictor(), clip, frames, couple, prior, seed, n_walkers,
+    return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
                       n_steps, max_iter, latent_uncertainty)
 
 
-def _infer_one(model, P, clip, frames, couple, prior, seed, n_walkers, n_steps, max_iter,
+def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
                latent_uncertainty):
     import emcee
 
@@ -353,7 +377,9 @@ def _infer_one(model, P, clip, frames, couple, prior, seed, n_walkers, n_steps, 
     B = _bucket(T)
     mask = jnp.asarray(np.arange(B) < T)
     Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
-    fixed, conc, inferred = _style_setup(model, couple, prior)
+    fixed, conc, inferred = _style_setup(model, given, prior)
+    # given coordinates -> the kernels' style vectors (learned ones when the fit learned them)
+    fixed = {f: np.asarray(v) @ np.asarray(P.level_vectors[f]) for f, v in fixed.items()}
     X0, I0, nearest = _init_latents(model, Ys, B)
     params = {"X": jnp.asarray(X0), "I": jnp.asarray(I0)}
     for f in inferred:

@@ -42,9 +42,10 @@ def _normal(x, mean, var):
     return -0.5 * (jnp.sum((x - mean) ** 2, -1) / var + D * (LOG_2PI + jnp.log(var)))
 
 
-def styles_from(params: dict, fixed: dict, factors) -> list[jnp.ndarray]:
-    """Per factor (K_f,) style: free ones from params["u:<f>"], else the fixed vector."""
-    return [style_to_simplex(params["u:" + f][None])[0] if ("u:" + f) in params
+def styles_from(params: dict, fixed: dict, factors, vectors: dict) -> list[jnp.ndarray]:
+    """Per factor (K_f,) style vector: a free one's coordinates ``params["u:<f>"]`` (on the
+    simplex) times its level vectors, else the fixed vector."""
+    return [style_to_simplex(params["u:" + f][None])[0] @ vectors[f] if ("u:" + f) in params
             else jnp.asarray(fixed[f]) for f in factors]
 
 
@@ -71,14 +72,15 @@ def clip_terms(P: Predictor, params: dict, Ys, mask, fixed: dict, int_factors, d
     m = mask.astype(I.dtype)
     noise = noise_variances(P)
     bottom = _bottom_term(P, X, Ys, m)
-    s_int = [jnp.broadcast_to(s, (B, s.shape[0])) for s in styles_from(params, fixed, int_factors)]
+    s_int = [jnp.broadcast_to(s, (B, s.shape[0]))
+             for s in styles_from(params, fixed, int_factors, P.level_vectors)]
     mu, var = predict_interaction(P, I, s_int)
     Z = jnp.concatenate([X[a] for a in range(X.shape[0])], axis=1)
     inter = jnp.sum(m * _normal(Z, mu, var + noise["X"]))
     o = P.dyn_lags.shape[0]
     lags = jnp.stack([I[o - l:B - l] for l in range(1, o + 1)])
     s_dyn = [jnp.broadcast_to(s, (B - o, s.shape[0]))
-             for s in styles_from(params, fixed, dyn_factors)]
+             for s in styles_from(params, fixed, dyn_factors, P.level_vectors)]
     mu, var = predict_dynamics(P, lags, s_dyn)
     dyn = jnp.sum(m[o:] * _normal(I[o:], mu, var + noise["I"])) + _start_prior(I[:o], init_var)
     return bottom, inter, dyn
@@ -121,6 +123,7 @@ class StyleExpansion(NamedTuple):
     const: jnp.ndarray  # bottom term + the dynamics prior of the first frames
     inter: _Expanded
     dyn: _Expanded
+    vectors: dict  # free factor -> (K_f, K_f) level vectors
 
 
 def _combos(factors, free: dict):
@@ -129,11 +132,13 @@ def _combos(factors, free: dict):
     return names, list(itertools.product(*[range(free[f]) for f in names]))
 
 
-def _expand(kernel_at, fit: LayerFit, factors, free: dict, fixed: dict, n: int):
+def _expand(kernel_at, fit: LayerFit, factors, free: dict, fixed: dict, n: int, vectors: dict):
+    """Cross-covariances at every combination of the free factors' level vectors: the clip's
+    style vector w @ V is linear in its coordinates w, so its kernel rows are sums over these."""
     names, combos = _combos(factors, free)
     kx = []
     for combo in combos:
-        styles = [jnp.eye(free[f])[combo[names.index(f)]] if f in free else jnp.asarray(fixed[f])
+        styles = [vectors[f][combo[names.index(f)]] if f in free else jnp.asarray(fixed[f])
                   for f in factors]
         kx.append(kernel_at([jnp.broadcast_to(v, (n, v.shape[0])) for v in styles]))
     kx = jnp.stack(kx)  # (P, M, n)
@@ -162,7 +167,7 @@ def style_expansion(P: Predictor, params: dict, Ys, mask, fixed: dict, free: dic
         (n, free[f] if f in free else len(fixed[f]))) for f in factors]
     Z = jnp.concatenate([X[a] for a in range(X.shape[0])], axis=1)
     G, H = _expand(lambda S: kernels.interaction_kernel(P.I, I, list(P.int_style), S, P.beta),
-                   P.inter, int_factors, free, fixed, B)
+                   P.inter, int_factors, free, fixed, B, P.level_vectors)
     base = jnp.ones(B)
     for s in unit(int_factors, B):
         base = base * jnp.sum(s * s, -1)
@@ -171,10 +176,11 @@ def style_expansion(P: Predictor, params: dict, Ys, mask, fixed: dict, free: dic
     lags = jnp.stack([I[o - l:B - l] for l in range(1, o + 1)])
     G, H = _expand(lambda S: kernels.dynamics_kernel(list(P.dyn_lags), list(lags),
                                                      list(P.dyn_style), S, P.alpha),
-                   P.dyn, dyn_factors, free, fixed, B - o)
+                   P.dyn, dyn_factors, free, fixed, B - o, P.level_vectors)
     base = kernels.dynamics_diag(list(lags), unit(dyn_factors, B - o), P.alpha)
     dyn = _Expanded(I[o:], G, H, base, noise["I"], m[o:])
-    return StyleExpansion(_bottom_term(P, X, Ys, m) + _start_prior(I[:o], init_var), inter, dyn)
+    return StyleExpansion(_bottom_term(P, X, Ys, m) + _start_prior(I[:o], init_var), inter, dyn,
+                          {f: P.level_vectors[f] for f in free})
 
 
 def _layer_term(E: _Expanded, c, norm2):
@@ -186,14 +192,14 @@ def _layer_term(E: _Expanded, c, norm2):
 def expanded_log_density(E: StyleExpansion, params: dict, concentration: dict, free: dict,
                          int_factors, dyn_factors):
     """:func:`clip_log_density` at the free styles ``params["u:<f>"]`` from an expansion."""
-    styles = {f: style_to_simplex(params["u:" + f][None])[0] for f in free}
+    coords = {f: style_to_simplex(params["u:" + f][None])[0] for f in free}
 
-    def coeffs(factors):
+    def coeffs(factors):  # kernel rows are multilinear in the coordinates; |w V|^2 scales k(u,u)
         names, _ = _combos(factors, free)
         c, norm2 = jnp.ones(1), 1.0
         for f in names:
-            c = jnp.kron(c, styles[f])
-            norm2 = norm2 * jnp.sum(styles[f] ** 2)
+            c = jnp.kron(c, coords[f])
+            norm2 = norm2 * jnp.sum((coords[f] @ E.vectors[f]) ** 2)
         return c, norm2
 
     total = (E.const + _layer_term(E.inter, *coeffs(int_factors))

@@ -133,7 +133,7 @@ class HGPDM:
         return cls(**d)
 
     def fit(self, dataset: MotionDataset, **kwargs):
-        """MAP fit; see :func:`bayesmotion.fit.fit_map` for the options."""
+        """MAP fit; see :func:`bayesmotion.fit.fit_hgpdm` for the options."""
         from .fit import fit_hgpdm
 
         return fit_hgpdm(self, dataset, **kwargs)

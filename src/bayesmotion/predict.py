@@ -20,6 +20,7 @@ from jax.scipy.linalg import cho_solve, solve_triangular
 
 from . import kernels, layers
 from .model import constrained, trial_styles
+from .params import STYLE_PREFIX, style_to_simplex
 
 
 class LayerFit(NamedTuple):
@@ -40,6 +41,9 @@ class Predictor(NamedTuple):
         X: (A, N, Q_X) bottom inputs; bottom: LayerFit with L (A, N, N), A (A, N, D) -- equal D
             is not required: weights are stored per actor in ``bottom_A`` instead.
         gamma: (3,).
+        level_vectors: factor -> (K_f, K_f), row k the style vector of level k: the identity
+            unless the fit learned the style vectors (``optimize_style``). Callers give a new
+            input's style as coordinates over the levels; :func:`style_vectors` maps them.
     """
 
     dyn_lags: jnp.ndarray
@@ -54,6 +58,13 @@ class Predictor(NamedTuple):
     bottom_L: jnp.ndarray
     bottom_A: tuple
     gamma: jnp.ndarray
+    level_vectors: dict
+
+
+def style_vectors(P: Predictor, factors, coords) -> list[jnp.ndarray]:
+    """Style coordinates over the levels, (..., K_f) per factor -> the kernels' style vectors
+    (coordinates @ level vectors): a label's one-hot coordinates give its learned vector."""
+    return [jnp.asarray(c) @ P.level_vectors[f] for f, c in zip(factors, coords, strict=True)]
 
 
 def _fit_layer(K, outputs, jitter):
@@ -102,8 +113,10 @@ def _condition(spec, data, params, jitter) -> Predictor:
         f = _fit_layer(Kb, jnp.asarray(data.Y[a]), jitter)
         Ls.append(f.L)
         As.append(f.A)
+    vectors = {f: style_to_simplex(params[STYLE_PREFIX + f]) if STYLE_PREFIX + f in params
+               else jnp.eye(data.onehot[f].shape[1]) for f in spec.factors}
     return Predictor(jnp.stack(lags), dyn_style, dyn, h["alpha"], I, int_style, inter, h["beta"],
-                     X, jnp.stack(Ls), tuple(As), h["gamma"])
+                     X, jnp.stack(Ls), tuple(As), h["gamma"], vectors)
 
 
 def _mean_var(kx, kxx, fit: LayerFit):
