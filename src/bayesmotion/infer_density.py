@@ -20,7 +20,6 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.linalg import solve_triangular
 
 from . import kernels
 from .params import style_log_jacobian, style_to_simplex
@@ -144,7 +143,7 @@ def _expand(kernel_at, fit: LayerFit, factors, free: dict, fixed: dict, n: int, 
     kx = jnp.stack(kx)  # (P, M, n)
     P, M, _ = kx.shape
     G = jnp.einsum("pmn,md->pnd", kx, fit.A)
-    V = solve_triangular(fit.L, jnp.moveaxis(kx, 0, 1).reshape(M, P * n), lower=True)
+    V = fit.Linv @ jnp.moveaxis(kx, 0, 1).reshape(M, P * n)
     V = V.reshape(M, P, n)
     return G, jnp.einsum("mpn,mqn->npq", V, V)
 

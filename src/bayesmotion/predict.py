@@ -1,8 +1,8 @@
 """GP predictive distributions of the fitted hierarchy (eq. 13-16).
 
-``condition(model)`` precomputes, for every layer, the Cholesky factor of the training kernel
-matrix and the weights ``A = K^-1 outputs``; the result is a pytree, so a posterior can stack
-one per draw and ``vmap`` over them. For a new input ``u`` with style ``s``:
+``condition(model)`` precomputes, for every layer, the inverse Cholesky factor of the training
+kernel matrix and the weights ``A = K^-1 outputs``; the result is a pytree, so a posterior can
+stack one per draw and ``vmap`` over them. For a new input ``u`` with style ``s``:
 
     mean(u) = k(u, U)^T A,      var(u) = k(u, u) - |L^-1 k(U, u)|^2      (per output dimension)
 
@@ -16,17 +16,22 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.linalg import cho_solve, solve_triangular
+from jax.scipy.linalg import cho_solve
 
 from . import kernels, layers
+from .linalg import triangular_inverse
 from .model import constrained, trial_styles
 from .params import STYLE_PREFIX, style_to_simplex
 
 
 class LayerFit(NamedTuple):
-    """One conditioned GP layer. inputs: layer-specific; L: (M, M); A: (M, D)."""
+    """One conditioned GP layer: Linv = L^-1 (M, M) of the training Gram matrix K = L L^T,
+    and the weights A = K^-1 outputs (M, D).
 
-    L: jnp.ndarray
+    The inverse factor, not L, so that predictive variances |L^-1 k|^2 are matrix products
+    (every core, and batched without LAPACK calls) instead of triangular solves."""
+
+    Linv: jnp.ndarray
     A: jnp.ndarray
 
 
@@ -38,8 +43,8 @@ class Predictor(NamedTuple):
             (M, K_f) styles of its outputs; dyn: LayerFit; alpha: (2 + 2o,).
         I: (N, Q_I) interaction inputs; int_style: per interaction factor (N, K_f); inter:
             LayerFit; beta: (3,).
-        X: (A, N, Q_X) bottom inputs; bottom: LayerFit with L (A, N, N), A (A, N, D) -- equal D
-            is not required: weights are stored per actor in ``bottom_A`` instead.
+        X: (A, N, Q_X) bottom inputs; bottom_Linv: (A, N, N) inverse Cholesky factors per
+            actor; bottom_A: per actor (N, D_a) weights (a tuple: the D_a may differ).
         gamma: (3,).
         level_vectors: factor -> (K_f, K_f), row k the style vector of level k: the identity
             unless the fit learned the style vectors (``optimize_style``). Callers give a new
@@ -55,7 +60,7 @@ class Predictor(NamedTuple):
     inter: LayerFit
     beta: jnp.ndarray
     X: jnp.ndarray
-    bottom_L: jnp.ndarray
+    bottom_Linv: jnp.ndarray
     bottom_A: tuple
     gamma: jnp.ndarray
     level_vectors: dict
@@ -69,7 +74,7 @@ def style_vectors(P: Predictor, factors, coords) -> list[jnp.ndarray]:
 
 def _fit_layer(K, outputs, jitter):
     L, _ = layers.safe_cholesky(K, jitter)
-    return LayerFit(L, cho_solve((L, True), outputs))
+    return LayerFit(triangular_inverse(L), cho_solve((L, True), outputs))
 
 
 def condition(model, params: dict | None = None, jitter: float | None = None) -> Predictor:
@@ -111,7 +116,7 @@ def _condition(spec, data, params, jitter) -> Predictor:
     for a in range(X.shape[0]):
         Kb = kernels.bottom_kernel(X[a], X[a], h["gamma"]) + jnp.eye(X.shape[1]) / h["gamma"][2]
         f = _fit_layer(Kb, jnp.asarray(data.Y[a]), jitter)
-        Ls.append(f.L)
+        Ls.append(f.Linv)
         As.append(f.A)
     vectors = {f: style_to_simplex(params[STYLE_PREFIX + f]) if STYLE_PREFIX + f in params
                else jnp.eye(data.onehot[f].shape[1]) for f in spec.factors}
@@ -122,7 +127,7 @@ def _condition(spec, data, params, jitter) -> Predictor:
 def _mean_var(kx, kxx, fit: LayerFit):
     """kx: (M, B) cross-covariances, kxx: (B,) prior variances -> mean (B, D), var (B,)."""
     mean = kx.T @ fit.A
-    v = solve_triangular(fit.L, kx, lower=True)
+    v = fit.Linv @ kx
     return mean, jnp.maximum(kxx - jnp.sum(v * v, 0), 0.0)
 
 
@@ -161,7 +166,7 @@ def predict_interaction(P: Predictor, I_new, style_new):
 def predict_bottom(P: Predictor, a: int, X_new):
     """X_new: (B, Q_X) latents of actor a -> mean Y (B, D_a), variance (B,)."""
     kx = kernels.bottom_kernel(P.X[a], X_new, P.gamma)
-    fit = LayerFit(P.bottom_L[a], P.bottom_A[a])
+    fit = LayerFit(P.bottom_Linv[a], P.bottom_A[a])
     return _mean_var(kx, jnp.full(X_new.shape[0], P.gamma[0]), fit)
 
 
