@@ -225,6 +225,26 @@ def _channel_tables(layout: tuple):
     return owner, is_rot
 
 
+def _moving_channels(layout: tuple) -> np.ndarray:
+    """(J, C) 0/1: channel c moves joint j. Those are the rotations of j's strict ancestors and
+    the position channels of j and its ancestors (a joint's own rotation turns its children,
+    not itself)."""
+    parents, *_ = layout
+    owner, is_rot = _channel_tables(layout)
+    _, pos, _ = _plan(layout)
+    J, C = len(parents), len(owner)
+    out = np.zeros((J, C))
+    for j in range(J):
+        a, strict = j, False
+        while a >= 0:
+            if strict:
+                out[j, np.flatnonzero(is_rot & (owner == a))] = 1.0
+            if pos.size:
+                out[j, pos[pos[:, 0] == a, 2]] = 1.0
+            a, strict = parents[a], True
+    return out
+
+
 def _fk_with_variance(values, var, offsets, *, layout):
     """Positions (T, J, 3) and their first-order variance from independent channel variances.
 
@@ -235,7 +255,7 @@ def _fk_with_variance(values, var, offsets, *, layout):
     """
     parents, rot_idx, orders, pos_idx, _ = layout
     owner, is_rot = _channel_tables(layout)
-    groups, pos, levels = _plan(layout)
+    groups, pos, _ = _plan(layout)
     T, C, J = values.shape[0], len(owner), len(parents)
     R, parts, t = _local(values, offsets, layout)
     Rw, Pj = _world(R, t, layout)
@@ -267,17 +287,8 @@ def _fk_with_variance(values, var, offsets, *, layout):
     e = jnp.where(rot, sv * sv, Wc * Wc / rad2)
     feats = jnp.concatenate([G.reshape(C, T, 27), h.reshape(C, T, 9), e], axis=-1)
     featsw = feats * (rad2 * var[:, :C].T[..., None])  # (C, T, F)
-    # channels that move joint j: its parent's reach, the parent's rotations, j's positions
-    F = featsw.shape[-1]
-    rot_cols = np.flatnonzero(is_rot)
-    rot_sum = jnp.zeros((J, T, F), values.dtype).at[owner[rot_cols]].add(featsw[rot_cols])
-    pos_sum = jnp.zeros((J, T, F), values.dtype)
-    if pos.size:
-        pos_sum = pos_sum.at[pos[:, 0]].add(featsw[pos[:, 2]])
-    roots, _ = levels[0]
-    agg = jnp.zeros((J, T, F), values.dtype).at[roots].set(pos_sum[roots])
-    for js, ps in levels[1:]:
-        agg = agg.at[js].set(agg[ps] + rot_sum[ps] + pos_sum[js])
+    # the channels that move joint j, summed: one product with a static 0/1 (J, C) matrix
+    agg = jnp.einsum("jc,ctf->jtf", jnp.asarray(_moving_channels(layout), values.dtype), featsw)
     Gd, hd, ed = agg[..., :27].reshape(J, T, 3, 3, 3), agg[..., 27:36].reshape(J, T, 3, 3), \
         agg[..., 36:]
     pp = P0[..., :, None] * P0[..., None, :]  # (J, T, 3, 3)
