@@ -175,9 +175,9 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool):
     Returns (I (n_steps, Q), one-step variance (n_steps,) including the dynamics noise).
 
     The mean rollout needs only the predictive means, O(M Q) per step inside ``lax.scan``;
-    its one-step variances are computed afterwards for all steps at once (one triangular solve
-    with n_steps right-hand sides). A sampled rollout needs each step's variance to draw it, so
-    it computes it inside the scan.
+    its one-step variances are computed afterwards for all steps at once (one product of L^-1
+    with the n_steps cross-covariance columns). A sampled rollout needs each step's variance to
+    draw it, so it computes it inside the scan.
     """
     noise = noise_variances(P)["I"]
     o = I0.shape[0]

@@ -145,7 +145,7 @@ def predict_dynamics(P: Predictor, lags_new, style_new):
 
 
 def predict_dynamics_mean(P: Predictor, lags_new, style_new):
-    """The mean of :func:`predict_dynamics` alone, O(M) per input (no triangular solve)."""
+    """The mean of :func:`predict_dynamics` alone, O(M) per input (no O(M^2) variance)."""
     return _dynamics_cross(P, lags_new, style_new).T @ P.dyn.A
 
 
