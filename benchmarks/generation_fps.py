@@ -49,14 +49,17 @@ def _inputs(model, T: int, emotion: str = "happy"):
     import jax.numpy as jnp
 
     from bayesmotion.generate import _start_trial, resolve_style
+    from bayesmotion.predict import style_vectors
 
     values = {"emotion": emotion, "couple": model.levels["couple"][0]}
     coords = {f: resolve_style(model, f, values[f], T) for f in model.spec.factors}
     o = model.spec.order
     r = _start_trial(model, coords, None)
     I0 = jnp.asarray(model.latents(r)["I"][:o])
-    dyn_s = tuple(jnp.asarray(coords[f][o:]) for f in model.spec.dynamics_factors)
-    int_s = tuple(jnp.asarray(coords[f]) for f in model.spec.interaction_factors)
+    P = model.predictor()
+    dyn_f, int_f = model.spec.dynamics_factors, model.spec.interaction_factors
+    dyn_s = tuple(style_vectors(P, dyn_f, [coords[f][o:] for f in dyn_f]))
+    int_s = tuple(style_vectors(P, int_f, [coords[f] for f in int_f]))
     return r, I0, dyn_s, int_s
 
 

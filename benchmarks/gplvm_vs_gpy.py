@@ -257,7 +257,11 @@ def _add_gpy_default_threads(res: dict, py: Path, quick: bool, tmp: Path) -> Non
     out = tmp / "gpy_default.json"
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
     cmd = [str(py), __file__, "--out", str(out), "--gpy-only"] + (["--quick"] if quick else [])
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
+    except subprocess.TimeoutExpired:
+        res["gpy_default_blas_threads"] = {"failed": "timed out after 600 s"}
+        return
     if r.returncode:
         res["gpy_default_blas_threads"] = {"failed": (r.stderr.strip().splitlines() or ["?"])[-1]}
         return

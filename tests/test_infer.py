@@ -205,6 +205,21 @@ def test_learned_style_vectors_are_what_labels_mean(learned_style_model, tiny_da
         (vec,) = style_vectors(P, ["emotion"], [np.eye(2)[k]])
         np.testing.assert_allclose(vec, learned[r], rtol=1e-12)
     _check_expansion(m, tiny_data[0], {})
-    roll = m.generate(emotion="sad", n_frames=8)
+    roll = m.generate(emotion="sad", n_frames=8, start=0)
     np.testing.assert_array_equal(roll.styles["emotion"][0], [0.0, 1.0])  # coordinates kept
-    assert np.all(np.isfinite(roll.positions))
+    # the rollout is the one driven by sad's learned vector, not by the one-hot coordinates
+    import jax
+    import jax.numpy as jnp
+
+    from bayesmotion.generate import dynamics_rollout
+
+    o = m.spec.order
+    I0 = jnp.asarray(roll.I[:o])
+
+    def rollout_with(vec):
+        styles = tuple(jnp.tile(jnp.asarray(vec) if f == "emotion" else jnp.ones(1), (6, 1))
+                       for f in m.spec.dynamics_factors)
+        return np.asarray(dynamics_rollout(P, I0, styles, jax.random.PRNGKey(0), 6, False)[0])
+
+    np.testing.assert_allclose(roll.I[o:], rollout_with(V[1]), rtol=1e-10, atol=1e-12)
+    assert not np.allclose(roll.I[o:], rollout_with([0.0, 1.0]), rtol=1e-6)

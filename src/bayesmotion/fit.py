@@ -24,7 +24,8 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tup
             (initialised at their Dirichlet prior mean around the label, or at ``init``'s);
             True for every factor, or the names of the factors to free (e.g. ``("content",)``:
             Wang et al.'s learned content vectors, which let a held-out combination of content
-            and emotion borrow from the other contents); otherwise they stay one-hot.
+            and emotion borrow from the other contents); otherwise they stay one-hot. Style
+            vectors given in ``init`` are optimised too.
         max_iter: L-BFGS iterations.
         gtol: projected-gradient tolerance for convergence.
         seed: seed of the initial perturbation (the fit is deterministic for a seed).
@@ -40,17 +41,20 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tup
     data = prepare_data(spec, dataset, codecs)
     logp = LogPosterior(spec, data)
     params0 = init_params(spec, data, seed)
+    free = _free_factors(optimize_style, spec.factors)
+    for f, conc in logp.style_prior.concentration.items():
+        if f in free or STYLE_PREFIX + f in (init or {}):  # init's style vectors stay free
+            mean = conc / conc.sum(1, keepdims=True)
+            params0[STYLE_PREFIX + f] = np.asarray(simplex_to_style(mean))
     if init is not None:
         for k, v in init.items():
+            if k.startswith(STYLE_PREFIX) and k not in params0:
+                raise BayesmotionError(f"init[{k!r}]: the model has no style factor "
+                                       f"{k[len(STYLE_PREFIX):]!r}")
             if k in params0 and np.shape(v) != np.shape(params0[k]):
                 raise BayesmotionError(f"init[{k!r}] has shape {np.shape(v)}, this dataset "
                                        f"needs {np.shape(params0[k])}")
         params0.update({k: np.asarray(v) for k, v in init.items()})
-    free = _free_factors(optimize_style, spec.factors)
-    for f, conc in logp.style_prior.concentration.items():
-        if f in free and STYLE_PREFIX + f not in (init or {}):
-            mean = conc / conc.sum(1, keepdims=True)
-            params0[STYLE_PREFIX + f] = np.asarray(simplex_to_style(mean))
     params, diag = map_optimize(logp, params0, max_iter=max_iter, gtol=gtol, progress=progress,
                                 desc="MAP fit")
     return FittedHGPDM(spec=spec, params=params, codecs=codecs, levels=dict(dataset.levels),
@@ -59,7 +63,7 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tup
 
 
 def _free_factors(optimize_style, factors) -> tuple:
-    if isinstance(optimize_style, bool):
+    if optimize_style is None or isinstance(optimize_style, bool | np.bool_):
         return tuple(factors) if optimize_style else ()
     free = (optimize_style,) if isinstance(optimize_style, str) else tuple(optimize_style)
     unknown = [f for f in free if f not in factors]

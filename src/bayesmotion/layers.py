@@ -96,6 +96,7 @@ def _loglik_bwd(res, g):
     (failed factorisation) the value is -inf and the gradient zero.
     """
     Linv, alpha, ok = res
+    g = jnp.where(ok, g, 0.0)  # a NaN/inf cotangent must not leak through the zeros below
     return g * _dlogp_dK(Linv, alpha, ok), -g * jnp.where(ok, alpha, 0.0)
 
 
@@ -114,11 +115,13 @@ def gplvm_loglik(X, Y, gamma, jitter=0.0):
 
 
 def _rbf_gplvm_factor(X, gamma, jitter):
-    """(K_rbf, L, ok): the kernel without noise and the Cholesky factor of the noisy one."""
-    Kf = kernels.bottom_kernel(X, X, gamma)
+    """(E, L, ok): E = exp(-gamma2/2 |x - x'|^2), the kernel without its variance gamma1 (kept
+    apart so that d/dgamma1 = sum(W o E) stays finite when gamma1 underflows to 0), and the
+    Cholesky factor of K = gamma1 E + noise I."""
+    E = kernels.rbf(X, X, 1.0, gamma[1])
     # gaussian_loglik's jitter is relative to mean(diag K) = gamma1 + 1/gamma3
     noise = 1.0 / gamma[2] + jitter * (gamma[0] + 1.0 / gamma[2])
-    return (Kf, *_factor(Kf + noise * jnp.eye(X.shape[0], dtype=Kf.dtype)))
+    return (E, *_factor(gamma[0] * E + noise * jnp.eye(X.shape[0], dtype=E.dtype)))
 
 
 @jax.custom_vjp
@@ -128,36 +131,38 @@ def _rbf_gplvm(X, Y, gamma, jitter):
 
 
 def _rbf_gplvm_fwd(X, Y, gamma, jitter):
-    Kf, L, ok = _rbf_gplvm_factor(X, gamma, jitter)
+    E, L, ok = _rbf_gplvm_factor(X, gamma, jitter)
     val, Linv, alpha = _with_inverse(L, Y, ok)
-    return val, (X, gamma, jitter, Kf, Linv, alpha, ok)
+    return val, (X, gamma, jitter, E, Linv, alpha, ok)
 
 
 def _rbf_gplvm_bwd(res, g):
     """The chain rule through the RBF kernel by hand, with W = d logp / dK:
 
-    W = (alpha alpha^T - D K^-1) / 2, G = W o K_rbf, r = G 1,
-    d/dX = -2 gamma2 (r o X - G X), d/dgamma1 = sum(G) / gamma1 + jitter tr W,
-    d/dgamma2 = -1/2 sum(G o |x - x'|^2) = -(r . |x|^2 - sum(X o G X)),
+    W = (alpha alpha^T - D K^-1) / 2, G = W o E (E = K_rbf / gamma1), r = G 1,
+    d/dX = -2 gamma1 gamma2 (r o X - G X), d/dgamma1 = sum(G) + jitter tr W,
+    d/dgamma2 = -gamma1/2 sum(G o |x - x'|^2) = -gamma1 (r . |x|^2 - sum(X o G X)),
     d/dgamma3 = -(1 + jitter) tr W / gamma3^2, d/dY = -alpha.
 
     Autodiff of the same function makes about fifteen N x N passes (transposes, a scatter for
     the diagonal, copies); this makes four, which is what puts this layer ahead of GPy
     (benchmarks/gplvm_vs_gpy.py). Outside the support the gradient is zero.
     """
-    X, gamma, jitter, Kf, Linv, alpha, ok = res
+    X, gamma, jitter, E, Linv, alpha, ok = res
+    g = jnp.where(ok, g, 0.0)  # a NaN/inf cotangent must not leak through the zeros below
     W = _dlogp_dK(Linv, alpha, ok)
     alpha = jnp.where(ok, alpha, 0.0)
-    G = W * Kf
+    G = W * E
     r = jnp.sum(G, axis=1)
     GX = G @ X
     trW = jnp.trace(W)
-    dX = -2.0 * gamma[1] * (r[:, None] * X - GX)
-    d_gamma = jnp.stack([jnp.sum(G) / gamma[0] + jitter * trW,
-                         -(jnp.sum(r * jnp.sum(X**2, axis=1)) - jnp.sum(X * GX)),
+    dX = -2.0 * gamma[0] * gamma[1] * (r[:, None] * X - GX)
+    d_gamma = jnp.stack([jnp.sum(G) + jitter * trW,
+                         -gamma[0] * (jnp.sum(r * jnp.sum(X**2, axis=1)) - jnp.sum(X * GX)),
                          -(1.0 + jitter) * trW / gamma[2] ** 2])
     d_jitter = trW * (gamma[0] + 1.0 / gamma[2])
-    return g * dX, -g * alpha, g * d_gamma.astype(gamma.dtype), g * d_jitter
+    return ((g * dX).astype(X.dtype), -g * alpha, (g * d_gamma).astype(gamma.dtype),
+            g * d_jitter)
 
 
 _rbf_gplvm.defvjp(_rbf_gplvm_fwd, _rbf_gplvm_bwd)
