@@ -1,7 +1,11 @@
 """Log-likelihoods of the layers: GP-LVM (eq. 1-3) and GPDM of order 1 or 2 (eq. 9, 11).
 
-All are computed through a Cholesky factor, never an inverse. Outside the support (a kernel
-matrix that is not positive definite even with jitter) they return -inf, never NaN.
+Values are computed through a Cholesky factor and a triangular solve, never an inverse of K.
+Gradients need K^-1 (d log|K| / dK = K^-1), so under differentiation the inverse factor L^-1
+is formed once, by blocks (:mod:`bayesmotion.linalg`), and the value there uses it as well (it
+agrees with the solve's to 1e-11 relative or better; tested at condition number 3e7). Outside the
+support (a kernel matrix that is not positive definite even with jitter) they return -inf,
+never NaN, with a zero gradient.
 """
 
 from __future__ import annotations
