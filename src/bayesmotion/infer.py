@@ -34,6 +34,7 @@ from .clip import clip_poses
 from .errors import BayesmotionError
 from .infer_density import clip_log_density, expanded_log_density, style_expansion
 from .params import simplex_to_style, style_to_simplex
+from .predict import style_vectors
 
 _STATIC = ("int_factors", "dyn_factors", "init_var")
 
@@ -379,7 +380,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
     fixed, conc, inferred = _style_setup(model, given, prior)
     # given coordinates -> the kernels' style vectors (learned ones when the fit learned them)
-    fixed = {f: np.asarray(v) @ np.asarray(P.level_vectors[f]) for f, v in fixed.items()}
+    fixed = dict(zip(fixed, style_vectors(P, list(fixed), list(fixed.values())), strict=True))
     X0, I0, nearest = _init_latents(model, Ys, B)
     params = {"X": jnp.asarray(X0), "I": jnp.asarray(I0)}
     for f in inferred:
