@@ -193,7 +193,7 @@ def test_gplvm_gradient_is_finite_when_the_variance_underflows(rng):
 
 
 def test_value_under_differentiation_equals_the_triangular_solve_value(rng):
-    """The differentiated path forms L^-1 (it needs K^-1 anyway); its value must agree with the
+    """The differentiated path forms K^-1 (its gradient needs it); its value must agree with the
     value-only path (Cholesky + triangular solve) on an ill-conditioned kernel matrix too."""
     X = np.cumsum(rng.normal(scale=0.05, size=(300, 2)), axis=0)  # a smooth, dense path
     Y = rng.normal(size=(300, 4))

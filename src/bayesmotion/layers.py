@@ -1,9 +1,10 @@
 """Log-likelihoods of the layers: GP-LVM (eq. 1-3) and GPDM of order 1 or 2 (eq. 9, 11).
 
 Values are computed through a Cholesky factor and a triangular solve, never an inverse of K.
-Gradients need K^-1 (d log|K| / dK = K^-1), so under differentiation the inverse factor L^-1
-is formed once, by blocks (:mod:`bayesmotion.linalg`), and the value there uses it as well (it
-agrees with the solve's to 1e-11 relative or better; tested at condition number 3e7). Outside the
+Gradients need K^-1 (d log|K| / dK = K^-1), so under differentiation K^-1 = L^-T L^-1 is
+formed once, by blocks (:mod:`bayesmotion.linalg`), and the value there uses it as well: the
+quadratic form is sum(Y o K^-1 Y), which agrees with the solve's |L^-1 Y|^2 to 1e-11 relative or
+better (tested at condition number 3e7; 8e-14 at 6e11 in a one-off check). Outside the
 support (a kernel matrix that is not positive definite even with jitter) they return -inf,
 never NaN, with a zero gradient.
 """
@@ -67,17 +68,18 @@ def _primal(L, Y, ok):
 
 
 def _with_inverse(L, Y, ok):
-    """Under differentiation: L^-1 once, by blocks; it gives alpha = K^-1 Y here and K^-1 in
-    the VJP (:func:`_dlogp_dK`). Returns (value, L^-1, alpha)."""
-    Linv = triangular_inverse(L)
-    V = Linv @ Y
-    return _value(jnp.sum(V**2), L, *Y.shape, ok), Linv, Linv.T @ V
+    """Under differentiation: K^-1 = L^-T L^-1 once, by blocks (:mod:`bayesmotion.linalg`); the
+    VJP needs it (d log|K| / dK), and it gives alpha = K^-1 Y in one product and the quadratic
+    form as sum(Y o alpha). Returns (value, K^-1, alpha)."""
+    Kinv = lower_gram(triangular_inverse(L))
+    alpha = Kinv @ Y
+    return _value(jnp.sum(Y * alpha), L, *Y.shape, ok), Kinv, alpha
 
 
-def _dlogp_dK(Linv, alpha, ok):
+def _dlogp_dK(Kinv, alpha, ok):
     """W = d logp / dK = (alpha alpha^T - D K^-1) / 2, zero outside the support."""
     D = alpha.shape[1]
-    return jnp.where(ok, 0.5 * (alpha @ alpha.T - D * lower_gram(Linv)), 0.0)
+    return jnp.where(ok, 0.5 * (alpha @ alpha.T - D * Kinv), 0.0)
 
 
 @jax.custom_vjp
@@ -88,8 +90,8 @@ def _loglik_chol(K, Y):
 
 def _loglik_fwd(K, Y):
     L, ok = _factor(K)
-    val, Linv, alpha = _with_inverse(L, Y, ok)
-    return val, (Linv, alpha, ok)
+    val, Kinv, alpha = _with_inverse(L, Y, ok)
+    return val, (Kinv, alpha, ok)
 
 
 def _loglik_bwd(res, g):
@@ -99,9 +101,9 @@ def _loglik_bwd(res, g):
     ``cho_solve`` costs about twice as much (benchmarks/gplvm_vs_gpy.py). Outside the support
     (failed factorisation) the value is -inf and the gradient zero.
     """
-    Linv, alpha, ok = res
+    Kinv, alpha, ok = res
     g = jnp.where(ok, g, 0.0)  # a NaN/inf cotangent must not leak through the zeros below
-    return g * _dlogp_dK(Linv, alpha, ok), -g * jnp.where(ok, alpha, 0.0)
+    return g * _dlogp_dK(Kinv, alpha, ok), -g * jnp.where(ok, alpha, 0.0)
 
 
 _loglik_chol.defvjp(_loglik_fwd, _loglik_bwd)
@@ -136,8 +138,8 @@ def _rbf_gplvm(X, Y, gamma, jitter):
 
 def _rbf_gplvm_fwd(X, Y, gamma, jitter):
     E, L, ok = _rbf_gplvm_factor(X, gamma, jitter)
-    val, Linv, alpha = _with_inverse(L, Y, ok)
-    return val, (X, gamma, jitter, E, Linv, alpha, ok)
+    val, Kinv, alpha = _with_inverse(L, Y, ok)
+    return val, (X, gamma, jitter, E, Kinv, alpha, ok)
 
 
 def _rbf_gplvm_bwd(res, g):
@@ -152,9 +154,9 @@ def _rbf_gplvm_bwd(res, g):
     the diagonal, copies); this makes four, which is what puts this layer ahead of GPy
     (benchmarks/gplvm_vs_gpy.py). Outside the support the gradient is zero.
     """
-    X, gamma, jitter, E, Linv, alpha, ok = res
+    X, gamma, jitter, E, Kinv, alpha, ok = res
     g = jnp.where(ok, g, 0.0)  # a NaN/inf cotangent must not leak through the zeros below
-    W = _dlogp_dK(Linv, alpha, ok)
+    W = _dlogp_dK(Kinv, alpha, ok)
     alpha = jnp.where(ok, alpha, 0.0)
     G = W * E
     r = jnp.sum(G, axis=1)
