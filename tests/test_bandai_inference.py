@@ -46,4 +46,7 @@ def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
         np.mean([t["intervals_cover"] for t in r["trials"]]))
     assert set(r["baselines"]) == {"affective_features", "mean_pose_nn"}
     assert [h["metric"].strip()[:6] for h in saved["headline"]] == \
-        ["H-GPDM", "affect", "mean-p", "second"]
+        ["H-GPDM", "temper", "affect", "mean-p", "second"]
+    cal = r["calibrated"]
+    assert cal["coverage"] == pytest.approx(np.mean([t["calibrated"]["covered"]
+                                                     for t in r["trials"]]))

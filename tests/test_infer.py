@@ -144,7 +144,12 @@ def _check_expansion(m, trial, given, seed=3):
 
     from bayesmotion.clip import clip_poses
     from bayesmotion.infer import _init_latents, _style_setup
-    from bayesmotion.infer_density import clip_log_density, expanded_log_density, style_expansion
+    from bayesmotion.infer_density import (
+        clip_log_density,
+        expanded_log_density,
+        style_expansion,
+        style_log_prior,
+    )
 
     Ys = clip_poses(m, trial)
     T, B = Ys[0].shape[0], 32
@@ -170,6 +175,11 @@ def _check_expansion(m, trial, given, seed=3):
                                   init_var=float(spec.priors.init_var), **args)
         fast = expanded_log_density(E, u, conc_j, free, **args)
         np.testing.assert_allclose(float(fast), float(direct), rtol=1e-9)
+        # tempered: eta times the likelihood, the prior untouched
+        prior = float(style_log_prior(u, conc_j))
+        tempered = expanded_log_density(E, u, conc_j, free, likelihood_power=0.3, **args)
+        np.testing.assert_allclose(float(tempered), 0.3 * (float(direct) - prior) + prior,
+                                   rtol=1e-9)
     return free
 
 
@@ -223,3 +233,77 @@ def test_learned_style_vectors_are_what_labels_mean(learned_style_model, tiny_da
 
     np.testing.assert_allclose(roll.I[o:], rollout_with(V[1]), rtol=1e-10, atol=1e-12)
     assert not np.allclose(roll.I[o:], rollout_with([0.0, 1.0]), rtol=1e-6)
+
+
+def test_tempered_posterior_is_wider_and_checked(tiny_model, tiny_data):
+    """likelihood_power eta < 1 spreads the style posterior (about 1/sqrt(eta) in sd while it
+    stays off the simplex's faces); bad values are refused."""
+    trial = tiny_data[tiny_data.labels("emotion").index("happy")]
+    sd = {}
+    for eta in (1.0, 0.05):
+        ep = bm.infer_emotion(tiny_model, trial, n_steps=400, likelihood_power=eta,
+                              latent_uncertainty=False)
+        assert ep.info["likelihood_power"] == eta
+        sd[eta] = ep.samples[..., 0].std()
+    assert sd[0.05] > 2.0 * sd[1.0], sd
+    for bad in (0.0, -1.0, float("nan"), float("inf"), "1"):
+        with pytest.raises(bm.BayesmotionError, match="likelihood_power"):
+            bm.infer_emotion(tiny_model, trial, likelihood_power=bad)
+
+
+def test_mahalanobis_distance_of_a_point_is_the_quadratic_form():
+    rng = np.random.default_rng(2)
+    L = np.array([[0.05, 0.0], [-0.03, 0.04]])
+    mu = np.array([0.5, 0.3])
+    first = mu + rng.standard_normal((400_000, 2)) @ L.T
+    ep = _posterior_from(np.c_[first, 1 - first.sum(1)])
+    x = np.array([0.62, 0.21])
+    ref = (x - mu) @ np.linalg.solve(L @ L.T, x - mu)
+    assert ep.mahalanobis2(np.r_[x, 1 - x.sum()]) == pytest.approx(ref, rel=0.01)
+
+
+def test_calibrated_power_covers_overconfident_gaussian_posteriors():
+    """Posteriors 5x too narrow (truth ~ N(mean, 25 Sigma), posterior cov Sigma): eta ~ 1/25,
+    and at eta the q-ellipsoids (covariance Sigma / eta) hold a fraction q of the truths."""
+    from scipy.stats import chi2
+
+    from bayesmotion.evaluate import calibrate_likelihood_power
+
+    rng = np.random.default_rng(3)
+    dim, n = 3, 20_000
+    d2 = 25.0 * rng.chisquare(dim, n)  # squared distances in the posterior's metric
+    for q in (0.5, 0.9):
+        eta = calibrate_likelihood_power(d2, q, dim)
+        assert eta == pytest.approx(1 / 25, rel=0.05)
+        assert np.mean(eta * d2 <= chi2.ppf(q, dim)) == pytest.approx(q, abs=1e-3)
+    res = {"levels": ["a", "b", "c", "d"],
+           "trials": [{"truth_mahalanobis2": float(v)} for v in d2[:50]]}
+    assert calibrate_likelihood_power(res) == calibrate_likelihood_power(d2[:50], 0.9, 3)
+    with pytest.raises(bm.BayesmotionError, match="dim"):
+        calibrate_likelihood_power(d2)
+    with pytest.raises(bm.BayesmotionError, match="q must"):
+        calibrate_likelihood_power(d2, 1.0, 3)
+    with pytest.raises(bm.BayesmotionError, match="two finite"):
+        calibrate_likelihood_power([1.0, np.nan], 0.9, 3)
+
+
+@pytest.mark.slow
+def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
+    """Each held-out trial's eta comes from the other trials' plain posteriors only."""
+    from bayesmotion.evaluate import calibrate_likelihood_power, leave_one_out
+
+    res = leave_one_out(tiny_data, tiny_model, refit_iter=5, n_steps=150, baselines=False,
+                        calibrate=True)
+    d2 = np.array([t["truth_mahalanobis2"] for t in res["trials"]])
+    assert np.all(d2 >= 0)
+    for i, t in enumerate(res["trials"]):
+        assert t["calibrated"]["likelihood_power"] == pytest.approx(
+            calibrate_likelihood_power(np.delete(d2, i), 0.9, 1))
+        assert t["calibrated"]["pred"] in res["levels"]
+    cal = res["calibrated"]
+    assert cal["coverage"] == pytest.approx(np.mean([t["calibrated"]["covered"]
+                                                     for t in res["trials"]]))
+    assert cal["accuracy"] == pytest.approx(np.mean([t["calibrated"]["pred"] == t["true"]
+                                                     for t in res["trials"]]))
+    assert cal["likelihood_power_all_trials"] == pytest.approx(
+        calibrate_likelihood_power(res))

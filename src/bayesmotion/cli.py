@@ -76,10 +76,14 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--json", action="store_true")
     i.add_argument("--couple", default=None)
     i.add_argument("--seed", type=int, default=0)
+    i.add_argument("--likelihood-power", type=float, default=1.0,
+                   help="eta of the tempered posterior (from 'evaluate --calibrate')")
     e = add("evaluate", "leave-one-trial-out emotion inference")
     e.add_argument("model")
     e.add_argument("data")
     e.add_argument("--refit-iter", type=int, default=100)
+    e.add_argument("--calibrate", action="store_true",
+                   help="also calibrate the likelihood power on the folds (cross-fitted)")
     e.add_argument("--json", default=None, help="write the result to this JSON file")
     return p
 
@@ -154,7 +158,7 @@ def _cmd_infer(a):
 
             raise BayesmotionError(f"{c}: no such file")
     ep = infer_emotion(m, a.clips if len(a.clips) > 1 else a.clips[0], couple=a.couple,
-                       seed=a.seed)
+                       seed=a.seed, likelihood_power=a.likelihood_power)
     if a.json:
         lo, hi = ep.interval(0.9)
         print(json.dumps({"label": ep.label, "levels": list(ep.levels),
@@ -172,11 +176,17 @@ def _cmd_evaluate(a):
 
     m = load(a.model)
     ds = load_data(a.data, m.fps)
-    res = leave_one_out(ds, m, refit_iter=a.refit_iter)
+    res = leave_one_out(ds, m, refit_iter=a.refit_iter, calibrate=a.calibrate)
     print(format_confusion(res))
     print(f"coverage of the true label at {res['credible_level']:.0%}: credible region "
           f"{res['coverage']:.2f}, label set {res['label_set_coverage']:.2f}, all coordinate "
           f"intervals {res['interval_coverage']:.2f}")
+    if "calibrated" in res:
+        c = res["calibrated"]
+        print(f"tempered posteriors (likelihood power calibrated on the other folds, median "
+              f"{c['likelihood_power']['median']:.3g}): credible region {c['coverage']:.2f}, "
+              f"accuracy {c['accuracy']:.2f}; for new clips use --likelihood-power "
+              f"{c['likelihood_power_all_trials']:.3g}")
     if "baselines" in res:
         print("baselines: " + ", ".join(f"{k} {v:.2f}" for k, v in res["baselines"].items()))
     if a.json:

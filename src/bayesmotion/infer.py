@@ -76,27 +76,28 @@ def _expansion(latents, P, Ys, mask, fixed, conc, int_factors, dyn_factors, init
                            init_var)
 
 
-def _style_logp(x, E, conc, int_factors, dyn_factors, free):
+def _style_logp(x, E, conc, power, int_factors, dyn_factors, free):
     """log p of the clip at free styles ``x`` (sum K_f - 1,), latents fixed: O(T P D) through
-    the style expansion (bayesmotion.infer_density)."""
+    the style expansion (bayesmotion.infer_density); the likelihood raised to ``power``."""
     params, start = {}, 0
     for f, K in free:
         params["u:" + f] = x[start:start + K - 1]
         start += K - 1
-    return expanded_log_density(E, params, conc, dict(free), int_factors, dyn_factors)
+    return expanded_log_density(E, params, conc, dict(free), int_factors, dyn_factors, power)
 
 
 _STYLE_STATIC = ("int_factors", "dyn_factors", "free")
 
 
 @partial(jax.jit, static_argnames=_STYLE_STATIC)
-def _style_logp_batch(flat, E, conc, int_factors, dyn_factors, free):
-    return jax.vmap(lambda x: _style_logp(x, E, conc, int_factors, dyn_factors, free))(flat)
+def _style_logp_batch(flat, E, conc, power, int_factors, dyn_factors, free):
+    return jax.vmap(lambda x: _style_logp(x, E, conc, power, int_factors, dyn_factors,
+                                          free))(flat)
 
 
 @partial(jax.jit, static_argnames=_STYLE_STATIC)
-def _style_hessian(x, E, conc, int_factors, dyn_factors, free):
-    return jax.hessian(_style_logp)(x, E, conc, int_factors, dyn_factors, free)
+def _style_hessian(x, E, conc, power, int_factors, dyn_factors, free):
+    return jax.hessian(_style_logp)(x, E, conc, power, int_factors, dyn_factors, free)
 
 
 @dataclass(eq=False)
@@ -142,15 +143,28 @@ class EmotionPosterior:
         contain a vertex of the simplex, which is where a categorical label's true coordinates
         lie: equal-tailed intervals of a posterior on the open simplex never reach 0 or 1.
         """
-        flat = self._flat()[:, :-1]
+        dist = self._mahalanobis2()
+        return bool(dist(self._coords(coords)) <= np.quantile(dist(self._flat()[:, :-1]), q))
+
+    def mahalanobis2(self, coords) -> float:
+        """Squared Mahalanobis distance of ``coords`` from the posterior mean, in the posterior's
+        covariance (the metric of :meth:`region_contains`). For a Gaussian posterior it is
+        chi-square with K - 1 degrees of freedom at a draw; tempering the likelihood by eta
+        scales it by about eta (:func:`bayesmotion.evaluate.calibrate_likelihood_power`)."""
+        return float(self._mahalanobis2()(self._coords(coords)))
+
+    def _coords(self, coords):
         c = np.asarray(coords, dtype=np.float64)
         if c.shape != (len(self.levels),):
             raise BayesmotionError(f"coords must have {len(self.levels)} entries, got {c.shape}")
+        return c[:-1]
+
+    def _mahalanobis2(self):
+        flat = self._flat()[:, :-1]
         mu = flat.mean(0)
         cov = np.atleast_2d(np.cov(flat, rowvar=False))
         prec = np.linalg.pinv(cov + 1e-12 * np.trace(cov) * np.eye(cov.shape[0]))
-        dist = lambda x: np.einsum("...i,ij,...j->...", x - mu, prec, x - mu)
-        return bool(dist(c[:-1]) <= np.quantile(dist(flat), q))
+        return lambda x: np.einsum("...i,ij,...j->...", x - mu, prec, x - mu)
 
     def label_set(self, q: float = 0.9) -> tuple[str, ...]:
         """The smallest set of levels whose ``probabilities`` add up to at least ``q``."""
@@ -318,8 +332,8 @@ def _project(params, args, statics, max_iter, inferred, conc):
 
 def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=None,
                   method: str = "emcee", seed: int = 0, n_walkers: int = 64, n_steps: int = 150,
-                  n_draws: int = 4, max_iter: int = 200,
-                  latent_uncertainty: bool = True) -> EmotionPosterior:
+                  n_draws: int = 4, max_iter: int = 200, latent_uncertainty: bool = True,
+                  likelihood_power: float = 1.0) -> EmotionPosterior:
     """Posterior over the emotion coordinates of an observed clip.
 
     Args:
@@ -336,6 +350,11 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
         n_walkers, n_steps: emcee settings (per posterior draw).
         max_iter: L-BFGS iterations of the projection.
         latent_uncertainty: compute the diagonal Laplace sd of the latents.
+        likelihood_power: eta in the tempered posterior p(s) p(clip | s)^eta over the styles
+            (generalised Bayes). 1, the default, is the plain posterior. Below 1 widens it to
+            allow for model misspecification: with many frames the plain posterior is often
+            narrower than the distance from its mean to the true label. Choose eta from labelled
+            data with :func:`bayesmotion.evaluate.calibrate_likelihood_power`.
     Returns:
         EmotionPosterior.
     """
@@ -343,21 +362,25 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
 
     if method != "emcee":
         raise BayesmotionError(f"method must be 'emcee', got {method!r}")
+    if not (isinstance(likelihood_power, int | float | np.floating | np.integer)
+            and np.isfinite(likelihood_power) and likelihood_power > 0):
+        raise BayesmotionError(f"likelihood_power must be a positive finite number, got "
+                               f"{likelihood_power!r}")
     given = _given_styles(model.model if isinstance(model, Posterior) else model, couple,
                           styles)
     if isinstance(model, Posterior):
         idx = np.linspace(0, model.n_draws - 1, min(n_draws, model.n_draws)).astype(int)
         parts = [_infer_one(model.model, model.predictor(int(i)), clip, frames, given, prior,
                             seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
-                            latent_uncertainty and k == 0)
+                            latent_uncertainty and k == 0, likelihood_power)
                  for k, i in enumerate(idx)]
         return _pool(parts)
     return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
-                      n_steps, max_iter, latent_uncertainty)
+                      n_steps, max_iter, latent_uncertainty, likelihood_power)
 
 
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
-               latent_uncertainty):
+               latent_uncertainty, likelihood_power=1.0):
     import emcee
 
     t0 = time.perf_counter()
@@ -416,7 +439,8 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     ndim = x0.size
     W = max(n_walkers, 2 * ndim + 2)
     W += W % 2
-    sty = (E, conc_j, statics["int_factors"], statics["dyn_factors"], free)
+    sty = (E, conc_j, jnp.asarray(float(likelihood_power)), statics["int_factors"],
+           statics["dyn_factors"], free)
     from .posterior import _in_halves, capped_covariance, draw_start
 
     def log_prob(xs):  # in emcee's half-ensemble chunks: one compilation
@@ -448,7 +472,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
         start += n
     stage("sample")
     info = {"n_frames": T, "seconds": time.perf_counter() - t0, "stage_seconds": stages,
-            "tau": tau,
+            "tau": tau, "likelihood_power": float(likelihood_power),
             "acceptance": float(np.mean(sampler.acceptance_fraction)),
             "map_objective": float(res.fun), "map_iterations": int(res.nit),
             "n_samples": int(chain.shape[0] * chain.shape[1]),

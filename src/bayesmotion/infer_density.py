@@ -189,8 +189,11 @@ def _layer_term(E: _Expanded, c, norm2):
 
 
 def expanded_log_density(E: StyleExpansion, params: dict, concentration: dict, free: dict,
-                         int_factors, dyn_factors):
-    """:func:`clip_log_density` at the free styles ``params["u:<f>"]`` from an expansion."""
+                         int_factors, dyn_factors, likelihood_power=1.0):
+    """:func:`clip_log_density` at the free styles ``params["u:<f>"]`` from an expansion.
+
+    ``likelihood_power`` eta multiplies the clip's log-likelihood, not the styles' prior: the
+    tempered (generalised-Bayes) posterior p(s) p(clip | s)^eta; 1 is the plain posterior."""
     coords = {f: style_to_simplex(params["u:" + f][None])[0] for f in free}
 
     def coeffs(factors):  # kernel rows are multilinear in the coordinates; |w V|^2 scales k(u,u)
@@ -201,6 +204,7 @@ def expanded_log_density(E: StyleExpansion, params: dict, concentration: dict, f
             norm2 = norm2 * jnp.sum((coords[f] @ E.vectors[f]) ** 2)
         return c, norm2
 
-    total = (E.const + _layer_term(E.inter, *coeffs(int_factors))
-             + _layer_term(E.dyn, *coeffs(dyn_factors)) + style_log_prior(params, concentration))
+    loglik = (E.const + _layer_term(E.inter, *coeffs(int_factors))
+              + _layer_term(E.dyn, *coeffs(dyn_factors)))
+    total = likelihood_power * loglik + style_log_prior(params, concentration)
     return jnp.where(jnp.isnan(total), -jnp.inf, total)
