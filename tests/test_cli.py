@@ -65,6 +65,14 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     assert main(["generate", str(model), "--emotion", "0.5,0.5", "--frames", "12",
                  "--samples", "1", "--out", str(tmp_path / "gen")]) == 0
     assert len(list((tmp_path / "gen").glob("*.bvh"))) == 4
+    clips = [str(p) for p in sorted((tmp_path / "gen").glob("*mean_actor*.bvh"))]
+    assert len(clips) == 2
+    capsys.readouterr()
+    assert main(["infer", str(model), *clips, "--json", "--likelihood-power", "0.5"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["likelihood_power"] == 0.5 and out["label"] in out["levels"]
+    assert "likelihood_power" in one_line_error(
+        capsys, ["infer", str(model), *clips, "--likelihood-power", "0"])
 
 
 @pytest.mark.slow

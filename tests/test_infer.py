@@ -244,6 +244,8 @@ def test_tempered_posterior_is_wider_and_checked(tiny_model, tiny_data):
         ep = bm.infer_emotion(tiny_model, trial, n_steps=400, likelihood_power=eta,
                               latent_uncertainty=False)
         assert ep.info["likelihood_power"] == eta
+        assert ("likelihood power" in str(ep)) == (eta != 1.0)
+        assert ep.idata.posterior.attrs["likelihood_power"] == eta
         sd[eta] = ep.samples[..., 0].std()
     assert sd[0.05] > 2.0 * sd[1.0], sd
     for bad in (0.0, -1.0, float("nan"), float("inf"), "1"):

@@ -164,7 +164,8 @@ def _cmd_infer(a):
         print(json.dumps({"label": ep.label, "levels": list(ep.levels),
                           "mean": ep.mean.tolist(), "interval90": [lo.tolist(), hi.tolist()],
                           "probabilities": ep.probabilities.tolist(),
-                          "n_frames": ep.info["n_frames"]}))
+                          "n_frames": ep.info["n_frames"],
+                          "likelihood_power": ep.info["likelihood_power"]}))
     else:
         print(ep)
 

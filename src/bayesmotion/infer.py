@@ -208,6 +208,9 @@ class EmotionPosterior:
                 warnings.filterwarnings("ignore", message="More chains")
                 self._idata = az.from_dict(posterior=post, sample_stats={"lp": self.log_prob},
                                            coords=coords, dims=dims)
+            # lp is the tempered log-density when the likelihood power is not 1
+            self._idata.posterior.attrs["likelihood_power"] = float(
+                self.info.get("likelihood_power", 1.0))
         return self._idata
 
     def __str__(self) -> str:
@@ -215,8 +218,10 @@ class EmotionPosterior:
         lo, hi = self.interval(0.9)
         coords = ", ".join(f"{l}={m:.2f} [{a:.2f}, {b:.2f}]"
                            for l, m, a, b in zip(self.levels, self.mean, lo, hi, strict=True))
-        return (f"{self.label} (P={p.max():.2f}; {self.info.get('n_frames', '?')} frames); "
-                f"mean {coords}")
+        eta = self.info.get("likelihood_power", 1.0)
+        tempered = "" if eta == 1.0 else f"; likelihood power {eta:.3g}"
+        return (f"{self.label} (P={p.max():.2f}; {self.info.get('n_frames', '?')} frames"
+                f"{tempered}); mean {coords}")
 
     __repr__ = __str__
 
