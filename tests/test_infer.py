@@ -281,6 +281,10 @@ def test_calibrated_power_covers_overconfident_gaussian_posteriors():
     res = {"levels": ["a", "b", "c", "d"],
            "trials": [{"truth_mahalanobis2": float(v)} for v in d2[:50]]}
     assert calibrate_likelihood_power(res) == calibrate_likelihood_power(d2[:50], 0.9, 3)
+    # from a run tempered by eta0, distances shrank by eta0: the answer is still eta
+    tempered = {**res, "likelihood_power": 0.1,
+                "trials": [{"truth_mahalanobis2": 0.1 * float(v)} for v in d2[:50]]}
+    assert calibrate_likelihood_power(tempered) == pytest.approx(calibrate_likelihood_power(res))
     with pytest.raises(bm.BayesmotionError, match="dim"):
         calibrate_likelihood_power(d2)
     with pytest.raises(bm.BayesmotionError, match="q must"):
@@ -309,3 +313,8 @@ def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
                                                      for t in res["trials"]]))
     assert cal["likelihood_power_all_trials"] == pytest.approx(
         calibrate_likelihood_power(res))
+    with pytest.raises(bm.BayesmotionError, match="likelihood_power"):
+        leave_one_out(tiny_data, tiny_model, calibrate=True,
+                      infer_kwargs={"likelihood_power": 0.5})
+    with pytest.raises(bm.BayesmotionError, match="seed"):
+        leave_one_out(tiny_data, tiny_model, infer_kwargs={"seed": 1})

@@ -51,17 +51,20 @@ def calibrate_likelihood_power(result_or_distances, q: float = 0.9, dim: int | N
     the coverage that results (``leave_one_out(..., calibrate=True)`` does, on held-out folds).
 
     Args:
-        result_or_distances: a :func:`leave_one_out` result (its trials' ``truth_mahalanobis2``,
-            at eta = 1) or an array of such squared distances.
+        result_or_distances: a :func:`leave_one_out` result (its trials' ``truth_mahalanobis2``;
+            when that run was already tempered by eta0 the answer is relative to it, eta0 times
+            the factor) or an array of squared distances under the plain posterior.
         q: the credible level to calibrate.
         dim: K - 1 (taken from the result's levels when a result is given).
     """
     from scipy.stats import chi2
 
+    eta0 = 1.0
     if isinstance(result_or_distances, dict):
         res = result_or_distances
         d2 = [t["truth_mahalanobis2"] for t in res["trials"]]
         dim = len(res["levels"]) - 1 if dim is None else dim
+        eta0 = float(res.get("likelihood_power", 1.0))
     else:
         d2 = result_or_distances
     d2 = np.asarray(d2, dtype=np.float64).ravel()
@@ -71,7 +74,7 @@ def calibrate_likelihood_power(result_or_distances, q: float = 0.9, dim: int | N
         raise BayesmotionError(f"q must lie in (0, 1), got {q}")
     if d2.size < 2 or not np.all(np.isfinite(d2)) or np.any(d2 < 0):
         raise BayesmotionError("calibration needs at least two finite, non-negative distances")
-    return float(chi2.ppf(q, dim) / max(np.quantile(d2, q), 1e-300))
+    return float(eta0 * chi2.ppf(q, dim) / max(np.quantile(d2, q), 1e-300))
 
 
 def confusion_matrix(true, pred, levels) -> np.ndarray:
@@ -140,6 +143,9 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
             (:func:`calibrate_likelihood_power` without trial i), and report that posterior's
             coverage and accuracy under ``"calibrated"``: cross-fitted, so no trial's truth
             sets its own eta.
+        infer_kwargs: further options of every ``infer_emotion`` call (not ``styles``,
+            ``n_steps``, ``seed``, which the harness sets; ``likelihood_power`` only without
+            ``calibrate``).
 
     The held-out trial's labels of the model's other style factors (couple, content, ...) are
     given to ``infer_emotion``; only its emotion is inferred.
@@ -162,6 +168,12 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
     spec = spec or (full_model.spec if full_model is not None else HGPDM())
     fit_kwargs = dict(fit_kwargs or {})
     infer_kwargs = dict(infer_kwargs or {})
+    taken = {"styles", "n_steps", "seed", "latent_uncertainty"} & set(infer_kwargs)
+    if calibrate and "likelihood_power" in infer_kwargs:
+        taken.add("likelihood_power")
+    if taken:
+        raise BayesmotionError(f"infer_kwargs may not set {sorted(taken)}: leave_one_out sets "
+                               f"them")
     if full_model is None:
         full_model = spec.fit(dataset, progress=progress, seed=seed, **fit_kwargs)
     levels = list(dataset.levels["emotion"])
@@ -199,6 +211,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         "interval_coverage": float(np.mean([r["intervals_cover"] for r in rows])),
         "credible_level": q,
         "refit_iter": refit_iter,
+        "likelihood_power": float(infer_kwargs.get("likelihood_power", 1.0)),
     }
     if calibrate:
         out["calibrated"] = _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs)
