@@ -36,33 +36,46 @@ def _fold_init(full, keep: list[int]) -> dict:
     return init
 
 
-def calibrate_likelihood_power(result_or_distances, q: float = 0.9, dim: int | None = None
-                               ) -> float:
+def calibrate_likelihood_power(result_or_distances, q: float = 0.9, dim: int | None = None,
+                               region: str = "hpd") -> float:
     """The likelihood power eta that makes ``q`` credible regions cover the truth in a fraction
     ``q`` of labelled clips (a one-step version of Syring & Martin 2019's calibration of
     generalised posteriors).
 
-    With the plain posterior (eta = 1), the true label's squared Mahalanobis distance d2
-    (:meth:`EmotionPosterior.mahalanobis2`) is chi-square with K - 1 degrees of freedom when the
-    model is right. Tempering the likelihood by eta scales the posterior covariance by 1/eta
-    (flat prior, Gaussian shape), so d2 by eta; eta = chi2_q(K - 1) / quantile_q(d2) puts a
-    fraction ``q`` of the truths inside. eta < 1 widens overconfident posteriors, eta > 1 narrows
-    underconfident ones. The Gaussian shape is an approximation near the simplex's faces: check
-    the coverage that results (``leave_one_out(..., calibrate=True)`` does, on held-out folds).
+    Under the plain posterior (eta = 1) of a well-specified model, d2 = twice the clip's
+    log-likelihood drop from its best sample to the true label
+    (:meth:`EmotionPosterior.loglik_drop`; ``region="hpd"``, for highest-density regions), or
+    the truth's squared Mahalanobis distance (:meth:`EmotionPosterior.mahalanobis2`;
+    ``region="ellipsoid"``), is about chi-square with K - 1 degrees of freedom. Tempering the
+    likelihood by eta multiplies both by eta (a flat prior; for the ellipsoid, a Gaussian
+    shape), so eta = chi2_q(K - 1) / quantile_q(d2) puts a fraction ``q`` of the truths inside.
+    eta < 1 widens overconfident posteriors, eta > 1 narrows underconfident ones. These are
+    approximations on a bounded simplex: check the coverage that results
+    (``leave_one_out(..., calibrate=True)`` does, on held-out folds).
 
     Args:
-        result_or_distances: a :func:`leave_one_out` result (its trials' ``truth_mahalanobis2``;
-            when that run was already tempered by eta0 the answer is relative to it, eta0 times
-            the factor) or an array of squared distances under the plain posterior.
+        result_or_distances: a :func:`leave_one_out` result (its trials' ``truth_loglik_drop``
+            or ``truth_mahalanobis2``; when that run was already tempered by eta0 the answer is
+            relative to it, eta0 times the factor) or an array of d2 under the plain posterior.
         q: the credible level to calibrate.
         dim: K - 1 (taken from the result's levels when a result is given).
+        region: "hpd" or "ellipsoid": which statistic to read from a result.
     """
     from scipy.stats import chi2
 
+    if region not in ("hpd", "ellipsoid"):
+        raise BayesmotionError(f"region must be 'hpd' or 'ellipsoid', got {region!r}")
     eta0 = 1.0
     if isinstance(result_or_distances, dict):
         res = result_or_distances
-        d2 = [t["truth_mahalanobis2"] for t in res["trials"]]
+        if region == "hpd":
+            drops = [t.get("truth_loglik_drop") for t in res["trials"]]
+            if any(d is None for d in drops):
+                raise BayesmotionError("this result has no log-likelihood drops (pooled or "
+                                       "couple-inferred posteriors): use region='ellipsoid'")
+            d2 = 2 * np.asarray(drops, dtype=np.float64)
+        else:
+            d2 = [t["truth_mahalanobis2"] for t in res["trials"]]
         dim = len(res["levels"]) - 1 if dim is None else dim
         eta0 = float(res.get("likelihood_power", 1.0))
     else:
@@ -87,8 +100,11 @@ def confusion_matrix(true, pred, levels) -> np.ndarray:
 
 
 def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
-    """Re-infer every held-out trial at the likelihood power calibrated on the others."""
-    d2 = np.array([r["truth_mahalanobis2"] for r in rows])
+    """Re-infer every held-out trial at the likelihood power calibrated on the others: from the
+    log-likelihood drops (highest-density regions) when every posterior kept its density, else
+    from the Mahalanobis distances (ellipsoids)."""
+    hpd = all(r["truth_loglik_drop"] is not None for r in rows)
+    d2 = np.array([2 * r["truth_loglik_drop"] if hpd else r["truth_mahalanobis2"] for r in rows])
     for i, (r, (fold, held, given, truth)) in enumerate(zip(rows, runs, strict=True)):
         eta = calibrate_likelihood_power(np.delete(d2, i), q, len(levels) - 1)
         ep = infer_emotion(fold, held, styles=given, n_steps=n_steps, seed=seed + i,
@@ -96,10 +112,13 @@ def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
         r["calibrated"] = {"likelihood_power": eta, "pred": ep.label, "mean": ep.mean.tolist(),
                            "probabilities": ep.probabilities.tolist(),
                            "covered": ep.region_contains(truth, q),
+                           "hpd_covered": ep.hpd_contains(truth, q) if hpd else None,
                            "label_set": list(ep.label_set(q))}
     cal = [r["calibrated"] for r in rows]
     eta = np.array([c["likelihood_power"] for c in cal])
-    return {"coverage": float(np.mean([c["covered"] for c in cal])),
+    return {"statistic": "loglik_drop (hpd)" if hpd else "mahalanobis2 (ellipsoid)",
+            "coverage": float(np.mean([c["covered"] for c in cal])),
+            "hpd_coverage": float(np.mean([c["hpd_covered"] for c in cal])) if hpd else None,
             "accuracy": float(np.mean([r["calibrated"]["pred"] == r["true"] for r in rows])),
             "label_set_coverage": float(np.mean([r["true"] in r["calibrated"]["label_set"]
                                                  for r in rows])),
@@ -152,8 +171,11 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
     Returns:
         dict: per-trial true/pred labels, means, probabilities, coverage; accuracy and its
         binomial sd; confusion matrix (percent, Taubert layout); baseline accuracies; seconds.
-        Three coverages of the true label's coordinates (a vertex of the simplex) at level ``q``:
-        ``coverage``, by the credible region (:meth:`EmotionPosterior.region_contains`);
+        Four coverages of the true label's coordinates (a vertex of the simplex) at level ``q``:
+        ``coverage``, by the ellipsoidal credible region
+        (:meth:`EmotionPosterior.region_contains`); ``hpd_coverage``, by the highest-density
+        region (:meth:`EmotionPosterior.hpd_contains`; None when the posteriors kept no
+        density);
         ``label_set_coverage``, the true label inside the smallest set of levels holding
         probability ``q``; ``interval_coverage``, every coordinate inside its equal-tailed
         interval -- almost always 0 for a one-hot truth (equal-tailed intervals of a
@@ -187,12 +209,15 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
                            latent_uncertainty=False, **infer_kwargs)
         truth = np.eye(len(levels))[levels.index(held.labels["emotion"])]
         lo, hi = ep.interval(q)
+        dens = ep.log_likelihood is not None
         if calibrate:
             runs.append((fold, held, given, truth))
         rows.append({"trial": held.name, "true": held.labels["emotion"], "pred": ep.label,
                      "mean": ep.mean.tolist(), "probabilities": ep.probabilities.tolist(),
                      "covered": ep.region_contains(truth, q),
                      "truth_mahalanobis2": ep.mahalanobis2(truth),
+                     "hpd_covered": ep.hpd_contains(truth, q) if dens else None,
+                     "truth_loglik_drop": ep.loglik_drop(truth) if dens else None,
                      "label_set": list(ep.label_set(q)),
                      "intervals_cover": bool(np.all((truth >= lo) & (truth <= hi))),
                      "true_coordinate_interval": [float(lo[levels.index(held.labels["emotion"])]),
@@ -207,6 +232,8 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         "accuracy_sd": float(np.sqrt(acc * (1 - acc) / len(rows))),
         "confusion_percent": confusion_matrix(true, pred, levels).tolist(),
         "coverage": float(np.mean([r["covered"] for r in rows])),
+        "hpd_coverage": (float(np.mean([r["hpd_covered"] for r in rows]))
+                         if all(r["hpd_covered"] is not None for r in rows) else None),
         "label_set_coverage": float(np.mean([r["true"] in r["label_set"] for r in rows])),
         "interval_coverage": float(np.mean([r["intervals_cover"] for r in rows])),
         "credible_level": q,

@@ -32,7 +32,12 @@ import scipy.optimize
 
 from .clip import clip_poses
 from .errors import BayesmotionError
-from .infer_density import clip_log_density, expanded_log_density, style_expansion
+from .infer_density import (
+    clip_log_density,
+    expanded_log_density,
+    expanded_log_likelihood,
+    style_expansion,
+)
 from .params import simplex_to_style, style_to_simplex
 from .predict import style_vectors
 
@@ -96,6 +101,13 @@ def _style_logp_batch(flat, E, conc, power, int_factors, dyn_factors, free):
 
 
 @partial(jax.jit, static_argnames=_STYLE_STATIC)
+def _loglik_at_coords(W, E, int_factors, dyn_factors, free):
+    """(n,) untempered clip log-likelihood at emotion coordinates W (n, K), the simplex closed."""
+    return jax.vmap(lambda w: expanded_log_likelihood(E, {"emotion": w}, dict(free), int_factors,
+                                                      dyn_factors))(W)
+
+
+@partial(jax.jit, static_argnames=_STYLE_STATIC)
 def _style_hessian(x, E, conc, power, int_factors, dyn_factors, free):
     return jax.hessian(_style_logp)(x, E, conc, power, int_factors, dyn_factors, free)
 
@@ -109,7 +121,13 @@ class EmotionPosterior:
         samples: (n_chains, n_draws, K) emotion coordinates on the simplex.
         couple_levels / couple_samples: the same for the couple factor, or None.
         latents: X (A, T, Q_X), I (T, Q_I) at the MAP, with X_sd, I_sd (diagonal Laplace).
-        log_prob: (n_chains, n_draws). info: n_frames, seconds, acceptance, tau, map objective.
+        log_prob: (n_chains, n_draws). info: n_frames, seconds, acceptance, tau, map objective,
+            likelihood_power.
+        log_likelihood: emotion coordinates (n, K) -> (n,) the clip's untempered
+            log-likelihood (closed simplex), when the emotion was the only inferred factor of a
+            single model; None otherwise (pooled draws, or the couple inferred too). It gives the
+            highest-density credible regions (:meth:`hpd_contains`).
+        prior_concentration: the emotion's Dirichlet prior.
     """
 
     levels: tuple
@@ -119,7 +137,10 @@ class EmotionPosterior:
     couple_levels: tuple | None = None
     couple_samples: np.ndarray | None = None
     info: dict = field(default_factory=dict)
+    log_likelihood: object = None
+    prior_concentration: np.ndarray | None = None
     _idata: object = None
+    _sample_loglik: object = None
 
     def _flat(self):
         return self.samples.reshape(-1, self.samples.shape[-1])
@@ -145,6 +166,50 @@ class EmotionPosterior:
         """
         dist = self._mahalanobis2()
         return bool(dist(self._coords(coords)) <= np.quantile(dist(self._flat()[:, :-1]), q))
+
+    def log_density(self, coords) -> np.ndarray:
+        """Unnormalised log posterior density on the simplex (tempered when the likelihood power
+        is not 1) at coordinates (K,) or (n, K): eta log p(clip | w) + log Dirichlet(w)."""
+        import numpyro.distributions as dist
+
+        if self.log_likelihood is None:
+            raise BayesmotionError("no density kept for this posterior (pooled over model draws, "
+                                   "or the couple inferred too): use region_contains")
+        W = np.atleast_2d(np.asarray(coords, dtype=np.float64))
+        if W.shape[1] != len(self.levels) or np.any(W < 0) or np.any(
+                np.abs(W.sum(1) - 1) > 1e-9):
+            raise BayesmotionError(f"coords must be points of the {len(self.levels)}-level "
+                                   f"simplex (non-negative, summing to 1)")
+        conc = (np.ones(len(self.levels)) if self.prior_concentration is None
+                else self.prior_concentration)
+        prior = np.asarray(dist.Dirichlet(jnp.asarray(conc)).log_prob(
+            jnp.clip(jnp.asarray(W), 1e-300, 1.0)))
+        eta = self.info.get("likelihood_power", 1.0)
+        out = eta * np.asarray(self.log_likelihood(W)) + prior
+        return out if np.ndim(coords) == 2 else out[0]
+
+    def _samples_log_density(self):
+        if self._sample_loglik is None:
+            self._sample_loglik = self.log_density(self._flat())
+        return self._sample_loglik
+
+    def hpd_contains(self, coords, q: float = 0.9) -> bool:
+        """Whether ``coords`` lie in the highest-posterior-density ``q`` credible region: the
+        posterior density there is at least the (1 - q) quantile of the density at the samples.
+        Unlike the ellipsoid of :meth:`region_contains` it follows the posterior's shape on the
+        simplex, and a vertex is inside whenever the density there is high enough."""
+        return bool(self.log_density(coords) >= np.quantile(self._samples_log_density(), 1 - q))
+
+    def loglik_drop(self, coords) -> float:
+        """The clip's untempered log-likelihood at its best sample minus at ``coords``: twice it
+        is chi-square with K - 1 degrees of freedom at a draw of a well-specified model (it is
+        the statistic :func:`bayesmotion.evaluate.calibrate_likelihood_power` uses for
+        highest-density regions)."""
+        if self.log_likelihood is None:
+            self.log_density(coords)  # raises the explanation
+        ll = np.asarray(self.log_likelihood(self._flat()))
+        return float(ll.max() - np.asarray(self.log_likelihood(
+            np.atleast_2d(np.asarray(coords, np.float64))))[0])
 
     def mahalanobis2(self, coords) -> float:
         """Squared Mahalanobis distance of ``coords`` from the posterior mean, in the posterior's
@@ -484,10 +549,14 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
             "ess": float(chain.shape[0] * chain.shape[1] / np.max(tau))}
     lat = {"X": np.asarray(latents["X"])[:, :T], "I": np.asarray(latents["I"])[:T], **sd}
     cl = "couple" in styles
+    loglik = None
+    if [f for f, _ in free] == ["emotion"]:  # the density over the emotion alone is exact
+        lsty = (E, statics["int_factors"], statics["dyn_factors"], free)
+        loglik = lambda W: np.asarray(_loglik_at_coords(jnp.asarray(W), *lsty))
     return EmotionPosterior(tuple(model.levels["emotion"]), styles["emotion"], lat,
                             np.swapaxes(lp, 0, 1),
                             tuple(model.levels["couple"]) if cl else None,
-                            styles.get("couple"), info)
+                            styles.get("couple"), info, loglik, np.asarray(conc["emotion"]))
 
 
 def _pool(parts: list[EmotionPosterior]) -> EmotionPosterior:

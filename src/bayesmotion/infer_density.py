@@ -188,13 +188,11 @@ def _layer_term(E: _Expanded, c, norm2):
     return jnp.sum(E.weight * _normal(E.outputs, mean, var + E.noise))
 
 
-def expanded_log_density(E: StyleExpansion, params: dict, concentration: dict, free: dict,
-                         int_factors, dyn_factors, likelihood_power=1.0):
-    """:func:`clip_log_density` at the free styles ``params["u:<f>"]`` from an expansion.
-
-    ``likelihood_power`` eta multiplies the clip's log-likelihood, not the styles' prior: the
-    tempered (generalised-Bayes) posterior p(s) p(clip | s)^eta; 1 is the plain posterior."""
-    coords = {f: style_to_simplex(params["u:" + f][None])[0] for f in free}
+def expanded_log_likelihood(E: StyleExpansion, coords: dict, free: dict, int_factors,
+                            dyn_factors):
+    """The clip's log-likelihood (all layers, latents fixed) at the free styles' simplex
+    coordinates ``coords`` (factor -> (K_f,)) from an expansion; defined on the closed simplex,
+    vertices included."""
 
     def coeffs(factors):  # kernel rows are multilinear in the coordinates; |w V|^2 scales k(u,u)
         names, _ = _combos(factors, free)
@@ -204,7 +202,17 @@ def expanded_log_density(E: StyleExpansion, params: dict, concentration: dict, f
             norm2 = norm2 * jnp.sum((coords[f] @ E.vectors[f]) ** 2)
         return c, norm2
 
-    loglik = (E.const + _layer_term(E.inter, *coeffs(int_factors))
-              + _layer_term(E.dyn, *coeffs(dyn_factors)))
+    return (E.const + _layer_term(E.inter, *coeffs(int_factors))
+            + _layer_term(E.dyn, *coeffs(dyn_factors)))
+
+
+def expanded_log_density(E: StyleExpansion, params: dict, concentration: dict, free: dict,
+                         int_factors, dyn_factors, likelihood_power=1.0):
+    """:func:`clip_log_density` at the free styles ``params["u:<f>"]`` from an expansion.
+
+    ``likelihood_power`` eta multiplies the clip's log-likelihood, not the styles' prior: the
+    tempered (generalised-Bayes) posterior p(s) p(clip | s)^eta; 1 is the plain posterior."""
+    coords = {f: style_to_simplex(params["u:" + f][None])[0] for f in free}
+    loglik = expanded_log_likelihood(E, coords, free, int_factors, dyn_factors)
     total = likelihood_power * loglik + style_log_prior(params, concentration)
     return jnp.where(jnp.isnan(total), -jnp.inf, total)
