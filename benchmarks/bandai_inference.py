@@ -67,13 +67,15 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
     rows = [
         headline(f"H-GPDM leave-one-clip-out, {len(clips)} real walks", 100 * acc, "%",
                  ">= 75 and >= affective features", acc >= 0.75 and acc >= feat,
-                 f"+- {100 * res['accuracy_sd']:.0f}; the 90% credible region holds the true "
-                 f"label's coordinates in {100 * res['coverage']:.0f}%, the 90% label set the "
-                 f"true label in {100 * res['label_set_coverage']:.0f}%"),
+                 f"+- {100 * res['accuracy_sd']:.0f}; the 90% highest-density region holds "
+                 f"the true label's coordinates in {100 * res['hpd_coverage']:.0f}% (the "
+                 f"ellipsoid {100 * res['coverage']:.0f}%), the 90% label set the true label "
+                 f"in {100 * res['label_set_coverage']:.0f}%"),
         headline("  tempered posterior (likelihood power calibrated on the other folds)",
                  100 * cal["accuracy"], "%", "", None,
-                 f"the 90% credible region holds the true label's coordinates in "
-                 f"{100 * cal['coverage']:.0f}%; median power "
+                 f"the 90% highest-density region holds the true label's coordinates in "
+                 f"{100 * cal['hpd_coverage']:.0f}% (the ellipsoid "
+                 f"{100 * cal['coverage']:.0f}%); median power "
                  f"{cal['likelihood_power']['median']:.2g}"),
         headline("  affective-feature classifier, same folds", 100 * feat, "%"),
         headline("  mean-pose nearest neighbour, same folds",

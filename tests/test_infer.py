@@ -147,9 +147,11 @@ def _check_expansion(m, trial, given, seed=3):
     from bayesmotion.infer_density import (
         clip_log_density,
         expanded_log_density,
+        expanded_log_likelihood,
         style_expansion,
         style_log_prior,
     )
+    from bayesmotion.params import style_to_simplex
 
     Ys = clip_poses(m, trial)
     T, B = Ys[0].shape[0], 32
@@ -180,6 +182,10 @@ def _check_expansion(m, trial, given, seed=3):
         tempered = expanded_log_density(E, u, conc_j, free, likelihood_power=0.3, **args)
         np.testing.assert_allclose(float(tempered), 0.3 * (float(direct) - prior) + prior,
                                    rtol=1e-9)
+        coords = {f: style_to_simplex(v[None])[0] for f, v in
+                  ((k[2:], u[k]) for k in u)}
+        np.testing.assert_allclose(float(expanded_log_likelihood(E, coords, free, **args)),
+                                   float(direct) - prior, rtol=1e-9)
     return free
 
 
@@ -253,6 +259,45 @@ def test_tempered_posterior_is_wider_and_checked(tiny_model, tiny_data):
             bm.infer_emotion(tiny_model, trial, likelihood_power=bad)
 
 
+def test_highest_density_region_is_calibrated_on_a_known_posterior():
+    """Posterior Dirichlet(a) (flat prior, likelihood prod w_k^(a_k - 1)): truths drawn from it
+    fall in the q highest-density region a fraction q of the time; the region follows the
+    density, so a vertex is inside when the density peaks there."""
+    import jax.numpy as jnp
+    import numpyro.distributions as dist
+
+    from bayesmotion.infer import EmotionPosterior
+
+    rng = np.random.default_rng(4)
+
+    def posterior(a, n=20_000):
+        loglik = lambda W: np.sum((np.asarray(a) - 1) * np.log(np.clip(W, 1e-300, 1)), 1)
+        s = rng.dirichlet(a, size=n)[None]
+        return EmotionPosterior(("a", "b", "c"), s, {}, np.zeros(s.shape[:2]),
+                                log_likelihood=loglik, prior_concentration=np.ones(3))
+
+    a = np.array([6.0, 3.0, 2.0])
+    ep = posterior(a)
+    truths = rng.dirichlet(a, size=600)
+    for q in (0.5, 0.9):
+        inside = np.mean([ep.hpd_contains(t, q) for t in truths])
+        assert inside == pytest.approx(q, abs=0.05), (q, inside)
+    # the unnormalised density is the Dirichlet's up to a constant
+    W = rng.dirichlet(np.ones(3), size=5)
+    ref = np.asarray(dist.Dirichlet(jnp.asarray(a)).log_prob(jnp.asarray(W)))
+    d = ep.log_density(W) - ref
+    np.testing.assert_allclose(d, d[0], rtol=1e-10)
+    assert ep.loglik_drop(W[0]) == pytest.approx(
+        ep.log_likelihood(ep.samples[0]).max() - ep.log_likelihood(W[:1])[0])
+    # a posterior piled against vertex a holds it; the ellipsoid may not
+    assert posterior([1.0, 0.3, 0.3]).hpd_contains([1.0, 0.0, 0.0], 0.9)
+    assert not posterior([20.0, 1.0, 1.0]).hpd_contains([0.0, 0.0, 1.0], 0.9)
+    with pytest.raises(bm.BayesmotionError, match="simplex"):
+        ep.hpd_contains([0.5, 0.6, 0.0])
+    with pytest.raises(bm.BayesmotionError, match="region_contains"):
+        _posterior_from(rng.dirichlet(a, size=10)).hpd_contains([1.0, 0.0, 0.0])
+
+
 def test_mahalanobis_distance_of_a_point_is_the_quadratic_form():
     rng = np.random.default_rng(2)
     L = np.array([[0.05, 0.0], [-0.03, 0.04]])
@@ -279,12 +324,17 @@ def test_calibrated_power_covers_overconfident_gaussian_posteriors():
         assert eta == pytest.approx(1 / 25, rel=0.05)
         assert np.mean(eta * d2 <= chi2.ppf(q, dim)) == pytest.approx(q, abs=1e-3)
     res = {"levels": ["a", "b", "c", "d"],
-           "trials": [{"truth_mahalanobis2": float(v)} for v in d2[:50]]}
-    assert calibrate_likelihood_power(res) == calibrate_likelihood_power(d2[:50], 0.9, 3)
+           "trials": [{"truth_mahalanobis2": float(v), "truth_loglik_drop": float(v) / 2}
+                      for v in d2[:50]]}
+    for region in ("hpd", "ellipsoid"):
+        assert calibrate_likelihood_power(res, region=region) == pytest.approx(
+            calibrate_likelihood_power(d2[:50], 0.9, 3))
     # from a run tempered by eta0, distances shrank by eta0: the answer is still eta
     tempered = {**res, "likelihood_power": 0.1,
-                "trials": [{"truth_mahalanobis2": 0.1 * float(v)} for v in d2[:50]]}
+                "trials": [{"truth_loglik_drop": 0.05 * float(v)} for v in d2[:50]]}
     assert calibrate_likelihood_power(tempered) == pytest.approx(calibrate_likelihood_power(res))
+    with pytest.raises(bm.BayesmotionError, match="ellipsoid"):
+        calibrate_likelihood_power({**res, "trials": [{"truth_loglik_drop": None}] * 3})
     with pytest.raises(bm.BayesmotionError, match="dim"):
         calibrate_likelihood_power(d2)
     with pytest.raises(bm.BayesmotionError, match="q must"):
@@ -300,12 +350,18 @@ def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
 
     res = leave_one_out(tiny_data, tiny_model, refit_iter=5, n_steps=150, baselines=False,
                         calibrate=True)
-    d2 = np.array([t["truth_mahalanobis2"] for t in res["trials"]])
+    assert res["calibrated"]["statistic"] == "loglik_drop (hpd)"
+    d2 = np.array([2 * t["truth_loglik_drop"] for t in res["trials"]])
     assert np.all(d2 >= 0)
     for i, t in enumerate(res["trials"]):
         assert t["calibrated"]["likelihood_power"] == pytest.approx(
             calibrate_likelihood_power(np.delete(d2, i), 0.9, 1))
         assert t["calibrated"]["pred"] in res["levels"]
+        assert isinstance(t["hpd_covered"], bool)
+    assert res["hpd_coverage"] == pytest.approx(np.mean([t["hpd_covered"]
+                                                         for t in res["trials"]]))
+    assert res["calibrated"]["hpd_coverage"] == pytest.approx(
+        np.mean([t["calibrated"]["hpd_covered"] for t in res["trials"]]))
     cal = res["calibrated"]
     assert cal["coverage"] == pytest.approx(np.mean([t["calibrated"]["covered"]
                                                      for t in res["trials"]]))
@@ -316,5 +372,9 @@ def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
     with pytest.raises(bm.BayesmotionError, match="likelihood_power"):
         leave_one_out(tiny_data, tiny_model, calibrate=True,
                       infer_kwargs={"likelihood_power": 0.5})
+    with pytest.raises(bm.BayesmotionError, match="region"):
+        calibrate_likelihood_power(res, region="box")
+    assert calibrate_likelihood_power(res, region="ellipsoid") == pytest.approx(
+        calibrate_likelihood_power([t["truth_mahalanobis2"] for t in res["trials"]], 0.9, 1))
     with pytest.raises(bm.BayesmotionError, match="seed"):
         leave_one_out(tiny_data, tiny_model, infer_kwargs={"seed": 1})

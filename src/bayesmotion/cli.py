@@ -179,13 +179,15 @@ def _cmd_evaluate(a):
     ds = load_data(a.data, m.fps)
     res = leave_one_out(ds, m, refit_iter=a.refit_iter, calibrate=a.calibrate)
     print(format_confusion(res))
-    print(f"coverage of the true label at {res['credible_level']:.0%}: credible region "
+    hpd = lambda r: "" if r.get("hpd_coverage") is None else \
+        f"highest-density region {r['hpd_coverage']:.2f}, "
+    print(f"coverage of the true label at {res['credible_level']:.0%}: {hpd(res)}ellipsoid "
           f"{res['coverage']:.2f}, label set {res['label_set_coverage']:.2f}, all coordinate "
           f"intervals {res['interval_coverage']:.2f}")
     if "calibrated" in res:
         c = res["calibrated"]
         print(f"tempered posteriors (likelihood power calibrated on the other folds, median "
-              f"{c['likelihood_power']['median']:.3g}): credible region {c['coverage']:.2f}, "
+              f"{c['likelihood_power']['median']:.3g}): {hpd(c)}ellipsoid {c['coverage']:.2f}, "
               f"accuracy {c['accuracy']:.2f}; for new clips use --likelihood-power "
               f"{c['likelihood_power_all_trials']:.3g}")
     if "baselines" in res:
