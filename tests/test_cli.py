@@ -89,6 +89,8 @@ def test_demo_quick_writes_every_file(tmp_path):
         assert key in s
     assert {"max_rhat", "min_ess_bulk", "mean_acceptance"} <= set(s["posterior"])
     assert 0 <= s["inference"]["accuracy"] <= 1
+    assert 0 <= s["inference"]["hpd90_covers_truth"] <= 1
+    assert 0 <= s["interpolation"]["hpd90_coverage"] <= 1
     first = s["inference"]["position_coverage_first_second"]
     assert 0 <= first["0.5"] <= first["0.9"] <= 1
     bins = s["inference"]["position_coverage_by_horizon"]

@@ -142,10 +142,12 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
                        "inferred_neutral": float(ep.mean[levels.index("neutral")]),
                        "happy_interval90": [float(lo[levels.index("happy")]),
                                             float(hi[levels.index("happy")])],
-                       "region90_covers": ep.region_contains(c, 0.9)})
+                       "region90_covers": ep.region_contains(c, 0.9),
+                       "hpd90_covers": ep.hpd_contains(c, 0.9)})
     summary["interpolation"] = {
         "series": interp,
         "region90_coverage": float(np.mean([x["region90_covers"] for x in interp])),
+        "hpd90_coverage": float(np.mean([x["hpd90_covers"] for x in interp])),
         "mean_abs_error": float(np.mean([abs(x["inferred_happy"] - x["s"]) for x in interp]))}
     fig, ax = plt.subplots(figsize=(4, 3))
     ax.plot([x["s"] for x in interp], [x["inferred_happy"] for x in interp], "o-")
@@ -168,12 +170,13 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
         cover.append(_coverage(model, trial, ep))
         rows.append([trial.name, trial.labels["emotion"], ep.label,
                      " ".join(f"{m:.2f}" for m in ep.mean),
-                     ep.region_contains(truth, 0.9),
+                     ep.hpd_contains(truth, 0.9), ep.region_contains(truth, 0.9),
                      bool(np.all((truth >= lo) & (truth <= hi)))])
     C = confusion_matrix(true, pred, levels)
     summary["inference"] = {
         "accuracy": float(np.mean([t == p for t, p in zip(true, pred, strict=True)])),
         "confusion_percent": C.tolist(), "levels": levels,
+        "hpd90_covers_truth": float(np.mean([r[-3] for r in rows])),
         "region90_covers_truth": float(np.mean([r[-2] for r in rows])),
         "interval90_covers_truth": float(np.mean([r[-1] for r in rows])),
         "position_coverage": {q: float(np.mean([c["overall"][q] for c in cover]))
@@ -198,7 +201,8 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
         ("Posterior-predictive handshakes (faint skeletons: samples)", gifs),
         ("Interpolation neutral -> happy, inferred back", [out / "interpolation.png"]),
         ("Emotion inference on held-out trials", [table(
-            rows, ["trial", "intended", "inferred", "mean coordinates", "90% region covers truth",
+            rows, ["trial", "intended", "inferred", "mean coordinates",
+                   "90% highest-density region covers truth", "90% ellipsoid covers truth",
                    "90% intervals cover truth"]),
             table([[levels[i]] + [f"{x:.0f}" for x in C[i]] for i in range(len(levels))],
                   ["inferred \\ intended"] + levels)]),
