@@ -1,5 +1,6 @@
 """Emotion-style inference: API, accuracy on training clips, online sharpening, errors."""
 
+import jax
 import numpy as np
 import pytest
 
@@ -245,10 +246,22 @@ def test_tempered_posterior_is_wider_and_checked(tiny_model, tiny_data):
     """likelihood_power eta < 1 spreads the style posterior (about 1/sqrt(eta) in sd while it
     stays off the simplex's faces); bad values are refused."""
     trial = tiny_data[tiny_data.labels("emotion").index("happy")]
+    import jax.numpy as jnp
+
+    from bayesmotion.params import simplex_to_style, style_log_jacobian
+
     sd = {}
     for eta in (1.0, 0.05):
         ep = bm.infer_emotion(tiny_model, trial, n_steps=400, likelihood_power=eta,
                               latent_uncertainty=False)
+        # the kept density is the sampler's target on the simplex: emcee's log-probability in
+        # stick-breaking coordinates minus the log-Jacobian, up to a constant
+        flat = ep.samples.reshape(-1, 2)
+        u = simplex_to_style(jnp.asarray(flat))
+        jac = np.asarray(jax.vmap(lambda v: style_log_jacobian(v[None]))(u))
+        diff = ep.log_density(flat) - (ep.log_prob.ravel() - jac)
+        np.testing.assert_allclose(diff, diff[0], atol=1e-6 * np.abs(ep.log_prob).max())
+        assert ep.loglik_drop(flat[0]) >= 0
         assert ep.info["likelihood_power"] == eta
         assert ("likelihood power" in str(ep)) == (eta != 1.0)
         assert ep.idata.posterior.attrs["likelihood_power"] == eta
@@ -294,6 +307,8 @@ def test_highest_density_region_is_calibrated_on_a_known_posterior():
     assert not posterior([20.0, 1.0, 1.0]).hpd_contains([0.0, 0.0, 1.0], 0.9)
     with pytest.raises(bm.BayesmotionError, match="simplex"):
         ep.hpd_contains([0.5, 0.6, 0.0])
+    with pytest.raises(bm.BayesmotionError, match="one point"):
+        ep.hpd_contains(W)
     with pytest.raises(bm.BayesmotionError, match="region_contains"):
         _posterior_from(rng.dirichlet(a, size=10)).hpd_contains([1.0, 0.0, 0.0])
 
@@ -329,10 +344,16 @@ def test_calibrated_power_covers_overconfident_gaussian_posteriors():
     for region in ("hpd", "ellipsoid"):
         assert calibrate_likelihood_power(res, region=region) == pytest.approx(
             calibrate_likelihood_power(d2[:50], 0.9, 3))
-    # from a run tempered by eta0, distances shrank by eta0: the answer is still eta
+    # from a run tempered by eta0: Mahalanobis distances shrank by eta0, the untempered
+    # log-likelihood drops did not; either way the answer is still eta
     tempered = {**res, "likelihood_power": 0.1,
-                "trials": [{"truth_loglik_drop": 0.05 * float(v)} for v in d2[:50]]}
-    assert calibrate_likelihood_power(tempered) == pytest.approx(calibrate_likelihood_power(res))
+                "trials": [{"truth_mahalanobis2": 0.1 * float(v), "truth_loglik_drop": v / 2}
+                           for v in d2[:50]]}
+    for region in ("hpd", "ellipsoid"):
+        assert calibrate_likelihood_power(tempered, region=region) == pytest.approx(
+            calibrate_likelihood_power(res))
+    with pytest.raises(bm.BayesmotionError, match="best point"):
+        calibrate_likelihood_power(np.zeros(10), 0.9, 3)
     with pytest.raises(bm.BayesmotionError, match="ellipsoid"):
         calibrate_likelihood_power({**res, "trials": [{"truth_loglik_drop": None}] * 3})
     with pytest.raises(bm.BayesmotionError, match="dim"):
@@ -378,3 +399,7 @@ def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
         calibrate_likelihood_power([t["truth_mahalanobis2"] for t in res["trials"]], 0.9, 1))
     with pytest.raises(bm.BayesmotionError, match="seed"):
         leave_one_out(tiny_data, tiny_model, infer_kwargs={"seed": 1})
+    with pytest.raises(bm.BayesmotionError, match="couple"):
+        leave_one_out(tiny_data, tiny_model, infer_kwargs={"couple": "c1"})
+    with pytest.raises(bm.BayesmotionError, match="3 trials"):
+        leave_one_out(tiny_data.take([0, 1]), tiny_model, calibrate=True)

@@ -42,21 +42,22 @@ def calibrate_likelihood_power(result_or_distances, q: float = 0.9, dim: int | N
     ``q`` of labelled clips (a one-step version of Syring & Martin 2019's calibration of
     generalised posteriors).
 
-    Under the plain posterior (eta = 1) of a well-specified model, d2 = twice the clip's
-    log-likelihood drop from its best sample to the true label
-    (:meth:`EmotionPosterior.loglik_drop`; ``region="hpd"``, for highest-density regions), or
-    the truth's squared Mahalanobis distance (:meth:`EmotionPosterior.mahalanobis2`;
-    ``region="ellipsoid"``), is about chi-square with K - 1 degrees of freedom. Tempering the
-    likelihood by eta multiplies both by eta (a flat prior; for the ellipsoid, a Gaussian
-    shape), so eta = chi2_q(K - 1) / quantile_q(d2) puts a fraction ``q`` of the truths inside.
+    For a well-specified model, d2 = twice the clip's untempered log-likelihood drop from its
+    best point to the true label (:meth:`EmotionPosterior.loglik_drop`; ``region="hpd"``, for
+    highest-density regions), or the truth's squared Mahalanobis distance under the plain
+    posterior (:meth:`EmotionPosterior.mahalanobis2`; ``region="ellipsoid"``), is about
+    chi-square with K - 1 degrees of freedom. In the posterior tempered by eta both scale by eta
+    (a flat prior; for the ellipsoid, a Gaussian shape), so eta = chi2_q(K - 1) / quantile_q(d2)
+    puts a fraction ``q`` of the truths inside.
     eta < 1 widens overconfident posteriors, eta > 1 narrows underconfident ones. These are
     approximations on a bounded simplex: check the coverage that results
     (``leave_one_out(..., calibrate=True)`` does, on held-out folds).
 
     Args:
-        result_or_distances: a :func:`leave_one_out` result (its trials' ``truth_loglik_drop``
-            or ``truth_mahalanobis2``; when that run was already tempered by eta0 the answer is
-            relative to it, eta0 times the factor) or an array of d2 under the plain posterior.
+        result_or_distances: a :func:`leave_one_out` result (its trials' ``truth_loglik_drop``,
+            which does not depend on the run's own likelihood power, or ``truth_mahalanobis2``,
+            which for a run tempered by eta0 is relative to eta0) or an array of d2 (Mahalanobis
+            distances under the plain posterior).
         q: the credible level to calibrate.
         dim: K - 1 (taken from the result's levels when a result is given).
         region: "hpd" or "ellipsoid": which statistic to read from a result.
@@ -76,8 +77,8 @@ def calibrate_likelihood_power(result_or_distances, q: float = 0.9, dim: int | N
             d2 = 2 * np.asarray(drops, dtype=np.float64)
         else:
             d2 = [t["truth_mahalanobis2"] for t in res["trials"]]
+            eta0 = float(res.get("likelihood_power", 1.0))
         dim = len(res["levels"]) - 1 if dim is None else dim
-        eta0 = float(res.get("likelihood_power", 1.0))
     else:
         d2 = result_or_distances
     d2 = np.asarray(d2, dtype=np.float64).ravel()
@@ -87,7 +88,11 @@ def calibrate_likelihood_power(result_or_distances, q: float = 0.9, dim: int | N
         raise BayesmotionError(f"q must lie in (0, 1), got {q}")
     if d2.size < 2 or not np.all(np.isfinite(d2)) or np.any(d2 < 0):
         raise BayesmotionError("calibration needs at least two finite, non-negative distances")
-    return float(eta0 * chi2.ppf(q, dim) / max(np.quantile(d2, q), 1e-300))
+    scale = float(np.quantile(d2, q))
+    if scale <= 1e-12:
+        raise BayesmotionError(f"the {q:.0%} quantile of d2 is {scale:.2g}: the truths sit at "
+                               f"the likelihood's best point, so no power can be calibrated")
+    return float(eta0 * chi2.ppf(q, dim) / scale)
 
 
 def confusion_matrix(true, pred, levels) -> np.ndarray:
@@ -160,11 +165,13 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         calibrate: also infer each held-out trial from a tempered posterior whose likelihood
             power is calibrated on the *other* trials' plain posteriors
             (:func:`calibrate_likelihood_power` without trial i), and report that posterior's
-            coverage and accuracy under ``"calibrated"``: cross-fitted, so no trial's truth
-            sets its own eta.
+            coverage and accuracy under ``"calibrated"``: cross-fitted, eta_i uses only the
+            other trials' held-out statistics (whose folds' models did see trial i's data).
+            Needs at least three trials. If no power can be calibrated, ``"calibrated"``
+            holds the error and the plain results are kept.
         infer_kwargs: further options of every ``infer_emotion`` call (not ``styles``,
-            ``n_steps``, ``seed``, which the harness sets; ``likelihood_power`` only without
-            ``calibrate``).
+            ``couple``, ``n_steps``, ``seed``, which the harness sets; ``likelihood_power`` only
+            without ``calibrate``).
 
     The held-out trial's labels of the model's other style factors (couple, content, ...) are
     given to ``infer_emotion``; only its emotion is inferred.
@@ -190,12 +197,14 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
     spec = spec or (full_model.spec if full_model is not None else HGPDM())
     fit_kwargs = dict(fit_kwargs or {})
     infer_kwargs = dict(infer_kwargs or {})
-    taken = {"styles", "n_steps", "seed", "latent_uncertainty"} & set(infer_kwargs)
+    taken = {"styles", "couple", "n_steps", "seed", "latent_uncertainty"} & set(infer_kwargs)
     if calibrate and "likelihood_power" in infer_kwargs:
         taken.add("likelihood_power")
     if taken:
         raise BayesmotionError(f"infer_kwargs may not set {sorted(taken)}: leave_one_out sets "
                                f"them")
+    if calibrate and len(dataset) < 3:
+        raise BayesmotionError(f"calibrate=True needs at least 3 trials, got {len(dataset)}")
     if full_model is None:
         full_model = spec.fit(dataset, progress=progress, seed=seed, **fit_kwargs)
     levels = list(dataset.levels["emotion"])
@@ -241,7 +250,10 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         "likelihood_power": float(infer_kwargs.get("likelihood_power", 1.0)),
     }
     if calibrate:
-        out["calibrated"] = _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs)
+        try:
+            out["calibrated"] = _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs)
+        except BayesmotionError as e:  # keep the plain results
+            out["calibrated"] = {"error": str(e)}
     if baselines:
         b = _baselines(dataset, "emotion")
         out["baselines"] = {k: float(np.mean([p == t for p, t in zip(v, true, strict=True)]))

@@ -140,6 +140,7 @@ class EmotionPosterior:
     log_likelihood: object = None
     prior_concentration: np.ndarray | None = None
     _idata: object = None
+    _sample_logp: object = None
     _sample_loglik: object = None
 
     def _flat(self):
@@ -172,14 +173,7 @@ class EmotionPosterior:
         is not 1) at coordinates (K,) or (n, K): eta log p(clip | w) + log Dirichlet(w)."""
         import numpyro.distributions as dist
 
-        if self.log_likelihood is None:
-            raise BayesmotionError("no density kept for this posterior (pooled over model draws, "
-                                   "or the couple inferred too): use region_contains")
-        W = np.atleast_2d(np.asarray(coords, dtype=np.float64))
-        if W.shape[1] != len(self.levels) or np.any(W < 0) or np.any(
-                np.abs(W.sum(1) - 1) > 1e-9):
-            raise BayesmotionError(f"coords must be points of the {len(self.levels)}-level "
-                                   f"simplex (non-negative, summing to 1)")
+        W = self._simplex_points(coords)
         conc = (np.ones(len(self.levels)) if self.prior_concentration is None
                 else self.prior_concentration)
         prior = np.asarray(dist.Dirichlet(jnp.asarray(conc)).log_prob(
@@ -188,28 +182,45 @@ class EmotionPosterior:
         out = eta * np.asarray(self.log_likelihood(W)) + prior
         return out if np.ndim(coords) == 2 else out[0]
 
+    def _simplex_points(self, coords) -> np.ndarray:
+        if self.log_likelihood is None:
+            raise BayesmotionError("no density kept for this posterior (pooled over model draws, "
+                                   "or the couple inferred too): use region_contains")
+        W = np.atleast_2d(np.asarray(coords, dtype=np.float64))
+        if W.ndim != 2 or W.shape[1] != len(self.levels) or np.any(W < 0) or np.any(
+                np.abs(W.sum(1) - 1) > 1e-9):
+            raise BayesmotionError(f"coords must be points of the {len(self.levels)}-level "
+                                   f"simplex (non-negative, summing to 1)")
+        return W
+
     def _samples_log_density(self):
-        if self._sample_loglik is None:
-            self._sample_loglik = self.log_density(self._flat())
-        return self._sample_loglik
+        if self._sample_logp is None:
+            self._sample_logp = self.log_density(self._flat())
+        return self._sample_logp
 
     def hpd_contains(self, coords, q: float = 0.9) -> bool:
-        """Whether ``coords`` lie in the highest-posterior-density ``q`` credible region: the
-        posterior density there is at least the (1 - q) quantile of the density at the samples.
-        Unlike the ellipsoid of :meth:`region_contains` it follows the posterior's shape on the
-        simplex, and a vertex is inside whenever the density there is high enough."""
+        """Whether the point ``coords`` (K,) lies in the highest-posterior-density ``q``
+        credible region: the posterior density there is at least the (1 - q) quantile of the
+        density at the samples. Unlike the ellipsoid of :meth:`region_contains` it follows the
+        posterior's shape on the simplex, and a vertex is inside whenever the density there is
+        high enough."""
+        if np.ndim(coords) != 1:
+            raise BayesmotionError("hpd_contains takes one point of the simplex, shape (K,)")
         return bool(self.log_density(coords) >= np.quantile(self._samples_log_density(), 1 - q))
 
     def loglik_drop(self, coords) -> float:
-        """The clip's untempered log-likelihood at its best sample minus at ``coords``: twice it
-        is chi-square with K - 1 degrees of freedom at a draw of a well-specified model (it is
-        the statistic :func:`bayesmotion.evaluate.calibrate_likelihood_power` uses for
-        highest-density regions)."""
-        if self.log_likelihood is None:
-            self.log_density(coords)  # raises the explanation
-        ll = np.asarray(self.log_likelihood(self._flat()))
-        return float(ll.max() - np.asarray(self.log_likelihood(
-            np.atleast_2d(np.asarray(coords, np.float64))))[0])
+        """The clip's untempered log-likelihood at its best point (the samples and ``coords``)
+        minus at ``coords``, >= 0. For a well-specified model, twice it is about chi-square with
+        K - 1 degrees of freedom at a draw; it does not depend on the likelihood power the
+        samples were drawn with (the statistic of
+        :func:`bayesmotion.evaluate.calibrate_likelihood_power` for highest-density regions)."""
+        W = self._simplex_points(coords)
+        if W.shape[0] != 1:
+            raise BayesmotionError("loglik_drop takes one point of the simplex, shape (K,)")
+        if self._sample_loglik is None:
+            self._sample_loglik = np.asarray(self.log_likelihood(self._flat()))
+        at = float(np.asarray(self.log_likelihood(W))[0])
+        return float(max(self._sample_loglik.max(), at) - at)
 
     def mahalanobis2(self, coords) -> float:
         """Squared Mahalanobis distance of ``coords`` from the posterior mean, in the posterior's
@@ -433,6 +444,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
     if method != "emcee":
         raise BayesmotionError(f"method must be 'emcee', got {method!r}")
     if not (isinstance(likelihood_power, int | float | np.floating | np.integer)
+            and not isinstance(likelihood_power, bool)
             and np.isfinite(likelihood_power) and likelihood_power > 0):
         raise BayesmotionError(f"likelihood_power must be a positive finite number, got "
                                f"{likelihood_power!r}")
