@@ -105,6 +105,12 @@ def _posterior_from(samples):
     return EmotionPosterior(("a", "b", "c"), s, {}, np.zeros(s.shape[:2]))
 
 
+def _gaussian_posterior(rng, mu, L, n):
+    """Samples of N(mu, L L^T) on the first two coordinates of a 3-level simplex."""
+    first = mu + rng.standard_normal((n, 2)) @ L.T
+    return _posterior_from(np.c_[first, 1 - first.sum(1)])
+
+
 def test_credible_region_matches_the_chi_square_quantile():
     """For Gaussian samples the q region is the ellipsoid at the chi-square(K-1) q quantile."""
     from scipy.stats import chi2
@@ -112,8 +118,7 @@ def test_credible_region_matches_the_chi_square_quantile():
     rng = np.random.default_rng(0)
     L = np.array([[0.05, 0.0], [-0.03, 0.04]])
     mu = np.array([0.6, 0.3])
-    first = mu + rng.standard_normal((200_000, 2)) @ L.T
-    ep = _posterior_from(np.c_[first, 1 - first.sum(1)])
+    ep = _gaussian_posterior(rng, mu, L, 200_000)
     direction = L @ np.array([np.cos(0.7), np.sin(0.7)])
     for q in (0.5, 0.9):
         for r2, inside in ((chi2.ppf(q - 0.03, 2), True), (chi2.ppf(q + 0.03, 2), False)):
@@ -317,8 +322,7 @@ def test_mahalanobis_distance_of_a_point_is_the_quadratic_form():
     rng = np.random.default_rng(2)
     L = np.array([[0.05, 0.0], [-0.03, 0.04]])
     mu = np.array([0.5, 0.3])
-    first = mu + rng.standard_normal((400_000, 2)) @ L.T
-    ep = _posterior_from(np.c_[first, 1 - first.sum(1)])
+    ep = _gaussian_posterior(rng, mu, L, 400_000)
     x = np.array([0.62, 0.21])
     ref = (x - mu) @ np.linalg.solve(L @ L.T, x - mu)
     assert ep.mahalanobis2(np.r_[x, 1 - x.sum()]) == pytest.approx(ref, rel=0.01)
