@@ -171,16 +171,19 @@ class EmotionPosterior:
     def log_density(self, coords) -> np.ndarray:
         """Unnormalised log posterior density on the simplex (tempered when the likelihood power
         is not 1) at coordinates (K,) or (n, K): eta log p(clip | w) + log Dirichlet(w)."""
+        W = self._simplex_points(coords)
+        out = self._tempered(np.asarray(self.log_likelihood(W)), W)
+        return out if np.ndim(coords) == 2 else out[0]
+
+    def _tempered(self, loglik, W):
+        """eta * loglik + log Dirichlet prior at W (n, K)."""
         import numpyro.distributions as dist
 
-        W = self._simplex_points(coords)
         conc = (np.ones(len(self.levels)) if self.prior_concentration is None
                 else self.prior_concentration)
         prior = np.asarray(dist.Dirichlet(jnp.asarray(conc)).log_prob(
             jnp.clip(jnp.asarray(W), 1e-300, 1.0)))
-        eta = self.info.get("likelihood_power", 1.0)
-        out = eta * np.asarray(self.log_likelihood(W)) + prior
-        return out if np.ndim(coords) == 2 else out[0]
+        return self.info.get("likelihood_power", 1.0) * loglik + prior
 
     def _simplex_points(self, coords) -> np.ndarray:
         if self.log_likelihood is None:
@@ -193,9 +196,15 @@ class EmotionPosterior:
                                    f"simplex (non-negative, summing to 1)")
         return W
 
+    def _samples_loglik(self):
+        if self._sample_loglik is None:
+            self._sample_loglik = np.asarray(self.log_likelihood(self._simplex_points(
+                self._flat())))
+        return self._sample_loglik
+
     def _samples_log_density(self):
         if self._sample_logp is None:
-            self._sample_logp = self.log_density(self._flat())
+            self._sample_logp = self._tempered(self._samples_loglik(), self._flat())
         return self._sample_logp
 
     def hpd_contains(self, coords, q: float = 0.9) -> bool:
@@ -217,10 +226,8 @@ class EmotionPosterior:
         W = self._simplex_points(coords)
         if W.shape[0] != 1:
             raise BayesmotionError("loglik_drop takes one point of the simplex, shape (K,)")
-        if self._sample_loglik is None:
-            self._sample_loglik = np.asarray(self.log_likelihood(self._flat()))
         at = float(np.asarray(self.log_likelihood(W))[0])
-        return float(max(self._sample_loglik.max(), at) - at)
+        return float(max(self._samples_loglik().max(), at) - at)
 
     def mahalanobis2(self, coords) -> float:
         """Squared Mahalanobis distance of ``coords`` from the posterior mean, in the posterior's
