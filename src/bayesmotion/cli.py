@@ -184,7 +184,9 @@ def _cmd_evaluate(a):
     print(f"coverage of the true label at {res['credible_level']:.0%}: {hpd(res)}ellipsoid "
           f"{res['coverage']:.2f}, label set {res['label_set_coverage']:.2f}, all coordinate "
           f"intervals {res['interval_coverage']:.2f}")
-    if "calibrated" in res:
+    if "calibrated" in res and "error" in res["calibrated"]:
+        print(f"tempered posteriors: {res['calibrated']['error']}")
+    elif "calibrated" in res:
         c = res["calibrated"]
         print(f"tempered posteriors (likelihood power calibrated on the other folds, median "
               f"{c['likelihood_power']['median']:.3g}): {hpd(c)}ellipsoid {c['coverage']:.2f}, "
