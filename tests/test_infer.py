@@ -277,6 +277,40 @@ def test_tempered_posterior_is_wider_and_checked(tiny_model, tiny_data):
             bm.infer_emotion(tiny_model, trial, likelihood_power=bad)
 
 
+def test_emotion_starts_levels_explains_the_clip_as_each_emotion(tiny_model, tiny_data):
+    """emotion_starts="levels" adds one projection start per emotion level (latents of that
+    level's nearest training frames, the emotion near its vertex) to the nearest-frame start
+    and keeps the best optimum: never worse than the single start, which it reproduces."""
+    import jax.numpy as jnp
+
+    from bayesmotion.infer import _starts
+    from bayesmotion.params import style_to_simplex
+
+    trial = tiny_data[tiny_data.labels("emotion").index("happy")]
+    one = bm.infer_emotion(tiny_model, trial, n_steps=60, latent_uncertainty=False)
+    many = bm.infer_emotion(tiny_model, trial, n_steps=60, latent_uncertainty=False,
+                            emotion_starts="levels")
+    K = len(tiny_model.levels["emotion"])
+    assert one.info["start_objectives"] == [one.info["map_objective"]]
+    assert len(many.info["start_objectives"]) == K + 1
+    assert many.info["start_objectives"][0] == one.info["map_objective"]
+    assert many.info["map_objective"] == min(many.info["start_objectives"])
+    assert many.info["emotion_starts"] == "levels"
+
+    Ys = [np.asarray(m) for m in bm.infer.clip_poses(tiny_model, trial)]
+    T = Ys[0].shape[0]
+    starts = _starts(tiny_model, Ys, T, ["emotion"], {"emotion": np.ones(K)}, "levels")
+    level = np.argmax(tiny_model.data.onehot["emotion"], 1)[tiny_model.data.trial_of_frame]
+    I_train = np.asarray(tiny_model.params["I"])
+    for k, p in enumerate(starts[1:]):
+        # every start latent is a training latent of level k
+        d = np.abs(np.asarray(p["I"])[:, None] - I_train[None]).sum(-1)
+        assert np.all(level[np.argmin(d, 1)] == k)
+        assert np.argmax(style_to_simplex(jnp.asarray(p["u:emotion"])[None])[0]) == k
+    with pytest.raises(bm.BayesmotionError, match="emotion_starts"):
+        bm.infer_emotion(tiny_model, trial, emotion_starts="all")
+
+
 def test_highest_density_region_is_calibrated_on_a_known_posterior():
     """Posterior Dirichlet(a) (flat prior, likelihood prod w_k^(a_k - 1)): truths drawn from it
     fall in the q highest-density region a fraction q of the time; the region follows the
