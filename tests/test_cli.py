@@ -73,6 +73,11 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     assert out["likelihood_power"] == 0.5 and out["label"] in out["levels"]
     assert "likelihood_power" in one_line_error(
         capsys, ["infer", str(model), *clips, "--likelihood-power", "0"])
+    assert main(["infer", str(model), *clips, "--json", "--emotion-starts", "levels"]) == 0
+    many = json.loads(capsys.readouterr().out)
+    assert many["emotion_starts"] == "levels" and out["emotion_starts"] == "nearest"
+    # the nearest-frame start is among the level starts: the best optimum is never worse
+    assert many["map_objective"] <= out["map_objective"] + 1e-9
 
 
 @pytest.mark.slow

@@ -78,12 +78,17 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--seed", type=int, default=0)
     i.add_argument("--likelihood-power", type=float, default=1.0,
                    help="eta of the tempered posterior (from 'evaluate --calibrate')")
+    i.add_argument("--emotion-starts", choices=("nearest", "levels"), default="nearest",
+                   help="'levels': also project the clip from each emotion level's frames "
+                        "(K+1 starts, the best kept)")
     e = add("evaluate", "leave-one-trial-out emotion inference")
     e.add_argument("model")
     e.add_argument("data")
     e.add_argument("--refit-iter", type=int, default=100)
     e.add_argument("--calibrate", action="store_true",
                    help="also calibrate the likelihood power on the folds (cross-fitted)")
+    e.add_argument("--emotion-starts", choices=("nearest", "levels"), default="nearest",
+                   help="projection starts of every inference (see 'infer')")
     e.add_argument("--json", default=None, help="write the result to this JSON file")
     return p
 
@@ -158,14 +163,17 @@ def _cmd_infer(a):
 
             raise BayesmotionError(f"{c}: no such file")
     ep = infer_emotion(m, a.clips if len(a.clips) > 1 else a.clips[0], couple=a.couple,
-                       seed=a.seed, likelihood_power=a.likelihood_power)
+                       seed=a.seed, likelihood_power=a.likelihood_power,
+                       emotion_starts=a.emotion_starts)
     if a.json:
         lo, hi = ep.interval(0.9)
         print(json.dumps({"label": ep.label, "levels": list(ep.levels),
                           "mean": ep.mean.tolist(), "interval90": [lo.tolist(), hi.tolist()],
                           "probabilities": ep.probabilities.tolist(),
                           "n_frames": ep.info["n_frames"],
-                          "likelihood_power": ep.info["likelihood_power"]}))
+                          "likelihood_power": ep.info["likelihood_power"],
+                          "emotion_starts": ep.info["emotion_starts"],
+                          "map_objective": ep.info["map_objective"]}))
     else:
         print(ep)
 
@@ -177,7 +185,8 @@ def _cmd_evaluate(a):
 
     m = load(a.model)
     ds = load_data(a.data, m.fps)
-    res = leave_one_out(ds, m, refit_iter=a.refit_iter, calibrate=a.calibrate)
+    res = leave_one_out(ds, m, refit_iter=a.refit_iter, calibrate=a.calibrate,
+                        infer_kwargs={"emotion_starts": a.emotion_starts})
     print(format_confusion(res))
     hpd = lambda r: "" if r.get("hpd_coverage") is None else \
         f"highest-density region {r['hpd_coverage']:.2f}, "
