@@ -402,19 +402,98 @@ def test_calibrated_power_covers_overconfident_gaussian_posteriors():
         calibrate_likelihood_power([1.0, np.nan], 0.9, 3)
 
 
+def test_tempered_hpd_levels_match_direct_sampling_of_a_dirichlet():
+    """With l(s) = sum (a_k - 1) log s_k and a flat prior, the posterior tempered by eta is
+    Dirichlet(1 + eta (a - 1)): the importance-sampled level of a point equals the mass of that
+    Dirichlet above the point's density, estimated here by sampling it directly."""
+    from scipy.stats import dirichlet
+
+    from bayesmotion.evaluate import tempered_hpd_levels, uniform_simplex_points
+
+    rng = np.random.default_rng(3)
+    a = np.array([9.0, 4.0, 2.0, 6.0])
+    U = uniform_simplex_points(4, 40000, seed=1)
+    ll = lambda S: np.log(S) @ (a - 1)
+    truths = np.array([[0.4, 0.2, 0.1, 0.3], [0.2, 0.5, 0.2, 0.1], [0.05, 0.05, 0.6, 0.3]])
+    etas = np.array([0.05, 0.3, 1.0])
+    h = tempered_hpd_levels(np.tile(ll(U), (3, 1)), ll(truths), etas)
+    for e, eta in enumerate(etas):
+        alpha = 1 + eta * (a - 1)
+        S = rng.dirichlet(alpha, 200000)
+        for j, t in enumerate(truths):
+            ref = np.mean(dirichlet.logpdf(S.T, alpha) >= dirichlet.logpdf(t, alpha))
+            assert h[e, j] == pytest.approx(ref, abs=0.015), (eta, t, h[e, j], ref)
+    assert np.all((h >= 0) & (h <= 1))
+
+
+def test_hpd_power_calibration_recovers_an_overconfidence_factor():
+    """Clip likelihoods c times too sharp (truths drawn from Dirichlet(a_j), likelihood
+    c sum (a_j - 1) log s): the calibrated power is about 1/c, and the regions it gives hold
+    about q of new truths; a likelihood that no power can make cover is refused."""
+    from bayesmotion.evaluate import (
+        calibrate_hpd_power,
+        tempered_hpd_levels,
+        uniform_simplex_points,
+    )
+
+    rng = np.random.default_rng(0)
+    c, n, q = 20.0, 200, 0.9
+    U = uniform_simplex_points(3, 4096, seed=2)
+    A = 2.0 + 6.0 * rng.random((n, 3))
+    T = np.array([rng.dirichlet(a) for a in A])
+    L = c * (A - 1) @ np.log(U).T
+    lt = c * np.sum((A - 1) * np.log(T), 1)
+    eta = calibrate_hpd_power(L, lt, q)
+    assert 0.6 / c < eta < 1.6 / c, eta
+    # fresh truths from the same posteriors: their coverage at that power is about q
+    T2 = np.array([rng.dirichlet(a) for a in A])
+    lt2 = c * np.sum((A - 1) * np.log(T2), 1)
+    cover = np.mean(tempered_hpd_levels(L, lt2, [eta]) <= q)
+    assert cover == pytest.approx(q, abs=0.06)
+    # truths at the likelihood's worst vertex of a tilted likelihood: even the flattest
+    # posterior's 90% region leaves them out
+    tilt = -50.0 * U[:, 0]
+    with pytest.raises(bm.BayesmotionError, match="no likelihood power"):
+        calibrate_hpd_power(np.tile(tilt, (5, 1)), np.full(5, -50.0), q)
+    with pytest.raises(bm.BayesmotionError, match="q must"):
+        calibrate_hpd_power(L, lt, 1.5)
+    with pytest.raises(bm.BayesmotionError, match="two clips"):
+        calibrate_hpd_power(L[:1], lt[:1], q)
+
+
 @pytest.mark.slow
 def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
     """Each held-out trial's eta comes from the other trials' plain posteriors only."""
+    from bayesmotion import evaluate
     from bayesmotion.evaluate import calibrate_likelihood_power, leave_one_out
 
-    res = leave_one_out(tiny_data, tiny_model, refit_iter=5, n_steps=150, baselines=False,
-                        calibrate=True)
-    assert res["calibrated"]["statistic"] == "loglik_drop (hpd)"
+    calls = []
+
+    def spy(L, lt, *args, **kwargs):
+        calls.append((np.array(L), np.array(lt)))
+        return levels(L, lt, *args, **kwargs)
+
+    levels = evaluate.tempered_hpd_levels
+    evaluate.tempered_hpd_levels = spy
+    try:
+        res = leave_one_out(tiny_data, tiny_model, refit_iter=5, n_steps=150, baselines=False,
+                            calibrate=True)
+    finally:
+        evaluate.tempered_hpd_levels = levels
+    real = evaluate.calibrate_hpd_power
+    assert res["calibrated"]["statistic"].startswith("highest-density levels")
     d2 = np.array([2 * t["truth_loglik_drop"] for t in res["trials"]])
     assert np.all(d2 >= 0)
+    n = len(res["trials"])
+    assert len(calls) == 1  # the levels of every clip, computed once
+    L_all, lt_all = calls[0]
+    assert L_all.shape[0] == n
+    # the clip likelihood at the truth is at most its best value among the points and samples
+    assert np.all(lt_all <= L_all.max(1) + d2 / 2 + 1e-9)
     for i, t in enumerate(res["trials"]):
+        # cross-fitted: trial i's power is the one calibrated on the others alone
         assert t["calibrated"]["likelihood_power"] == pytest.approx(
-            calibrate_likelihood_power(np.delete(d2, i), 0.9, 1))
+            real(np.delete(L_all, i, 0), np.delete(lt_all, i)))
         assert t["calibrated"]["pred"] in res["levels"]
         assert isinstance(t["hpd_covered"], bool)
     assert res["hpd_coverage"] == pytest.approx(np.mean([t["hpd_covered"]
@@ -426,8 +505,7 @@ def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
                                                      for t in res["trials"]]))
     assert cal["accuracy"] == pytest.approx(np.mean([t["calibrated"]["pred"] == t["true"]
                                                      for t in res["trials"]]))
-    assert cal["likelihood_power_all_trials"] == pytest.approx(
-        calibrate_likelihood_power(res))
+    assert cal["likelihood_power_all_trials"] == real(L_all, lt_all)
     with pytest.raises(bm.BayesmotionError, match="likelihood_power"):
         leave_one_out(tiny_data, tiny_model, calibrate=True,
                       infer_kwargs={"likelihood_power": 0.5})

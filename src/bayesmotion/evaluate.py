@@ -95,6 +95,82 @@ def calibrate_likelihood_power(result_or_distances, q: float = 0.9, dim: int | N
     return float(eta0 * chi2.ppf(q, dim) / scale)
 
 
+def uniform_simplex_points(K: int, n: int = 8192, seed: int = 0) -> np.ndarray:
+    """(n, K) points drawn uniformly on the simplex (Dirichlet(1)): the proposal with which
+    :func:`tempered_hpd_levels` integrates a tempered emotion posterior."""
+    return np.random.default_rng(seed).dirichlet(np.ones(K), size=n)
+
+
+_ETA_GRID = np.logspace(-8, 2, 401)
+
+
+def tempered_hpd_levels(loglik_points, loglik_truth, etas, log_prior_points=0.0,
+                        log_prior_truth=0.0) -> np.ndarray:
+    """The smallest highest-density level that holds the truth, for each clip and power.
+
+    For clip j with log-likelihood l_j over the emotion simplex and prior p, the posterior
+    tempered by eta has density p(s) exp(eta l_j(s)) / Z; the truth t lies in its ``q``
+    highest-density region iff h_j(eta) = P(p(S) e^{eta l_j(S)} >= p(t) e^{eta l_j(t)}) <= q.
+    h is integrated by self-normalised importance sampling from points uniform on the simplex
+    (:func:`uniform_simplex_points`), exact as the points grow; accurate while the tempered
+    posterior is wide against their spacing, which is the regime where regions can hold a
+    vertex.
+
+    Args:
+        loglik_points: (n_clips, M) l_j at the M points. loglik_truth: (n_clips,) l_j(t_j).
+        etas: (E,) powers. log_prior_points: (M,) log p at the points (0: flat).
+        log_prior_truth: (n_clips,) log p(t_j).
+    Returns:
+        (E, n_clips) h_j(eta).
+    """
+    L = np.asarray(loglik_points, dtype=np.float64)
+    lt = np.asarray(loglik_truth, dtype=np.float64)
+    lp = np.broadcast_to(np.asarray(log_prior_points, dtype=np.float64), L.shape[1:])
+    lpt = np.broadcast_to(np.asarray(log_prior_truth, dtype=np.float64), lt.shape)
+    out = np.empty((len(etas), L.shape[0]))
+    for e, eta in enumerate(np.asarray(etas, dtype=np.float64)):
+        logd = eta * L + lp  # tempered log density at the points (the proposal is uniform)
+        w = np.exp(logd - logd.max(1, keepdims=True))
+        out[e] = np.sum(w * (logd >= (eta * lt + lpt)[:, None]), 1) / w.sum(1)
+    return out
+
+
+def calibrate_hpd_power(loglik_points, loglik_truth, q: float = 0.9, log_prior_points=0.0,
+                        log_prior_truth=0.0, etas=None) -> float:
+    """The largest likelihood power whose tempered ``q`` highest-density regions hold the truth
+    for at least a fraction ``q`` of the clips, their levels computed by
+    :func:`tempered_hpd_levels` (no chi-square approximation: the simplex's faces, where the
+    regions of nearly flat posteriors are cut off, are accounted for). The largest such power
+    is the most informative posterior with that coverage.
+
+    Raises:
+        BayesmotionError: no power on the grid (default 1e-8..100, log-spaced) reaches the
+            coverage -- even the prior's regions leave too many truths out.
+    """
+    if not 0 < q < 1:
+        raise BayesmotionError(f"q must lie in (0, 1), got {q}")
+    L = np.atleast_2d(np.asarray(loglik_points, dtype=np.float64))
+    if L.shape[0] < 2 or not np.all(np.isfinite(L)) or not np.all(np.isfinite(loglik_truth)):
+        raise BayesmotionError("calibration needs at least two clips with finite "
+                               "log-likelihoods")
+    etas = _ETA_GRID if etas is None else np.sort(np.asarray(etas, dtype=np.float64))
+    return hpd_power_from_levels(tempered_hpd_levels(L, loglik_truth, etas, log_prior_points,
+                                                     log_prior_truth), q, etas)
+
+
+def hpd_power_from_levels(levels, q: float = 0.9, etas=None) -> float:
+    """:func:`calibrate_hpd_power` from precomputed levels (E, n_clips) on the grid ``etas``
+    (cross-fitting drops columns instead of recomputing them)."""
+    etas = _ETA_GRID if etas is None else np.asarray(etas, dtype=np.float64)
+    cover = np.mean(np.asarray(levels) <= q, axis=1)
+    ok = etas[cover >= q]
+    if ok.size == 0:
+        raise BayesmotionError(f"no likelihood power in [{etas[0]:.2g}, {etas[-1]:.2g}] makes "
+                               f"{q:.0%} regions hold {q:.0%} of the truths (best "
+                               f"{cover.max():.0%})")
+    return float(ok.max())
+
+
 def confusion_matrix(true, pred, levels) -> np.ndarray:
     """Percentages laid out as Taubert et al. Table 1: intended emotion in columns, inferred in
     rows; each column sums to 100."""
@@ -106,12 +182,22 @@ def confusion_matrix(true, pred, levels) -> np.ndarray:
 
 def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
     """Re-infer every held-out trial at the likelihood power calibrated on the others: from the
-    log-likelihood drops (highest-density regions) when every posterior kept its density, else
-    from the Mahalanobis distances (ellipsoids)."""
+    exact highest-density levels of their tempered posteriors when every posterior kept its
+    density, else from the Mahalanobis distances (ellipsoids, chi-square)."""
     hpd = all(r["truth_loglik_drop"] is not None for r in rows)
     d2 = np.array([2 * r["truth_loglik_drop"] if hpd else r["truth_mahalanobis2"] for r in rows])
-    for i, (r, (fold, held, given, truth)) in enumerate(zip(rows, runs, strict=True)):
-        eta = calibrate_likelihood_power(np.delete(d2, i), q, len(levels) - 1)
+    if hpd:  # the regions' exact levels (importance sampling on the simplex), not chi-square
+        L, lt, lpt = (np.array([run[k] for run in runs]) for k in (4, 5, 6))
+        H = tempered_hpd_levels(L, lt, _ETA_GRID, runs[0][7], lpt)
+
+        def power(keep):
+            return hpd_power_from_levels(H[:, keep], q)
+    else:
+        def power(keep):
+            return calibrate_likelihood_power(d2[keep], q, len(levels) - 1)
+    everyone = np.arange(len(rows))
+    for i, (r, (fold, held, given, truth, *_)) in enumerate(zip(rows, runs, strict=True)):
+        eta = power(everyone != i)
         ep = infer_emotion(fold, held, styles=given, n_steps=n_steps, seed=seed + i,
                            latent_uncertainty=False, likelihood_power=eta, **infer_kwargs)
         r["calibrated"] = {"likelihood_power": eta, "pred": ep.label, "mean": ep.mean.tolist(),
@@ -121,7 +207,8 @@ def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
                            "label_set": list(ep.label_set(q))}
     cal = [r["calibrated"] for r in rows]
     eta = np.array([c["likelihood_power"] for c in cal])
-    return {"statistic": "loglik_drop (hpd)" if hpd else "mahalanobis2 (ellipsoid)",
+    return {"statistic": ("highest-density levels (importance sampling on the simplex)" if hpd
+                          else "mahalanobis2 (ellipsoid, chi-square)"),
             "coverage": float(np.mean([c["covered"] for c in cal])),
             "hpd_coverage": float(np.mean([c["hpd_covered"] for c in cal])) if hpd else None,
             "accuracy": float(np.mean([r["calibrated"]["pred"] == r["true"] for r in rows])),
@@ -129,7 +216,7 @@ def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
                                                  for r in rows])),
             "likelihood_power": {"median": float(np.median(eta)), "min": float(eta.min()),
                                  "max": float(eta.max())},
-            "likelihood_power_all_trials": calibrate_likelihood_power(d2, q, len(levels) - 1)}
+            "likelihood_power_all_trials": power(everyone >= 0)}
 
 
 def _baselines(dataset: MotionDataset, factor: str) -> dict:
@@ -163,8 +250,10 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
             on the same folds.
         fit_kwargs: further options of every fit (e.g. ``optimize_style=("content",)``).
         calibrate: also infer each held-out trial from a tempered posterior whose likelihood
-            power is calibrated on the *other* trials' plain posteriors
-            (:func:`calibrate_likelihood_power` without trial i), and report that posterior's
+            power is calibrated on the *other* trials' plain posteriors (without trial i:
+            :func:`calibrate_hpd_power` on their clip likelihoods over the simplex when every
+            posterior kept its density, else :func:`calibrate_likelihood_power` on their
+            Mahalanobis distances), and report that posterior's
             coverage and accuracy under ``"calibrated"``: cross-fitted, eta_i uses only the
             other trials' held-out statistics (whose folds' models did see trial i's data).
             Needs at least three trials. If no power can be calibrated, ``"calibrated"``
@@ -220,7 +309,14 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         lo, hi = ep.interval(q)
         dens = ep.log_likelihood is not None
         if calibrate:
-            runs.append((fold, held, given, truth))
+            extra = ()
+            if dens:  # the clip's likelihood over the simplex, for the regions' exact levels
+                U = uniform_simplex_points(len(levels), seed=seed)
+                extra = (np.asarray(ep.log_likelihood(U)),
+                         float(np.asarray(ep.log_likelihood(truth[None]))[0]),
+                         float(ep._tempered(np.zeros(1), truth[None])[0]),
+                         np.asarray(ep._tempered(np.zeros(len(U)), U)))
+            runs.append((fold, held, given, truth, *extra))
         rows.append({"trial": held.name, "true": held.labels["emotion"], "pred": ep.label,
                      "mean": ep.mean.tolist(), "probabilities": ep.probabilities.tolist(),
                      "covered": ep.region_contains(truth, q),
