@@ -26,8 +26,10 @@ if str(HERE) not in sys.path:
 from _common import headline, standalone_main  # noqa: E402
 
 NAME = "handshake_inference"
-FULL = {"fps": 10.0, "couples": None, "max_iter": 300, "refit_iter": 100, "n_steps": 150}
-QUICK = {"fps": 10.0, "couples": ["c1"], "max_iter": 30, "refit_iter": 10, "n_steps": 60}
+FULL = {"fps": 10.0, "couples": None, "max_iter": 300, "refit_iter": 100, "n_steps": 150,
+        "emotion_starts": "levels"}
+QUICK = {"fps": 10.0, "couples": ["c1"], "max_iter": 30, "refit_iter": 10, "n_steps": 60,
+         "emotion_starts": "levels"}
 
 
 def run(quick: bool) -> dict:
@@ -43,7 +45,7 @@ def run(quick: bool) -> dict:
     full = HGPDM().fit(ds, max_iter=cfg["max_iter"], progress=False)
     t_fit = time.perf_counter() - t0
     res = leave_one_out(ds, full, refit_iter=cfg["refit_iter"], n_steps=cfg["n_steps"],
-                        calibrate=True)
+                        calibrate=True, infer_kwargs={"emotion_starts": cfg["emotion_starts"]})
     acc, cov, hpd, cal = res["accuracy"], res["coverage"], res["hpd_coverage"], res["calibrated"]
     cal_hpd = cal["hpd_coverage"]
     rows = [
