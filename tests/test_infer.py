@@ -455,6 +455,15 @@ def test_hpd_power_calibration_recovers_an_overconfidence_factor():
     tilt = -50.0 * U[:, 0]
     with pytest.raises(bm.BayesmotionError, match="no likelihood power"):
         calibrate_hpd_power(np.tile(tilt, (5, 1)), np.full(5, -50.0), q)
+    # the harness reports the most any power reaches instead of a calibration
+    from bayesmotion.evaluate import _calibrated
+
+    Ut = uniform_simplex_points(3, 2048, seed=3)
+    runs = [(None, None, None, np.eye(3)[0], -50.0 * Ut[:, 0], -50.0, 0.0, np.zeros(len(Ut)))
+            for _ in range(4)]
+    out = _calibrated([{"truth_loglik_drop": 50.0}] * 4, runs, ["a", "b", "c"], q, 10, 0, {})
+    assert "no likelihood power" in out["error"]
+    assert out["reachable_hpd_coverage"] == 0.0
     with pytest.raises(bm.BayesmotionError, match="q must"):
         calibrate_hpd_power(L, lt, 1.5)
     with pytest.raises(bm.BayesmotionError, match="two clips"):

@@ -189,6 +189,16 @@ def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
     if hpd:  # the regions' exact levels (importance sampling on the simplex), not chi-square
         L, lt, lpt = (np.array([run[k] for run in runs]) for k in (4, 5, 6))
         H = tempered_hpd_levels(L, lt, _ETA_GRID, runs[0][7], lpt)
+        # with a flat prior the levels only grow with eta (tempering moves mass onto the
+        # likelihood's superlevel sets): the flattest posterior covers the most
+        reachable = float(np.max(np.mean(H <= q, axis=1)))
+        if reachable < q:
+            return {"error": f"no likelihood power makes {q:.0%} regions hold {q:.0%} of the "
+                             f"truths: at best {reachable:.0%} (with a flat prior, the true "
+                             f"label's likelihood is below that of {q:.0%} of the simplex in "
+                             f"{1 - reachable:.0%} of the trials)",
+                    "statistic": "highest-density levels (importance sampling on the simplex)",
+                    "reachable_hpd_coverage": reachable}
 
         def power(keep):
             return hpd_power_from_levels(H[:, keep], q)
