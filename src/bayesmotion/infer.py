@@ -5,7 +5,8 @@
 2. Projection: the latents X*, I* and the clip's style vectors are found jointly by MAP
    (L-BFGS) of the clip's predictive log-density (bayesmotion.infer_density) with the model
    fixed, starting from the latents of the nearest training frames and the prior-mean style
-   (when the couple is inferred: one start per couple level, the best optimum kept).
+   (when the couple is inferred: one start per couple level, the best optimum kept; with
+   ``emotion_starts="levels"`` also one start per emotion level).
    Latent uncertainty: a diagonal Laplace approximation (Hutchinson estimate of diag H).
 3. Style posterior: emcee samples the clip's emotion coordinates (and its couple style when not
    given) on the simplex, with the latents held at their MAP -- i.e. the conditional posterior
@@ -474,10 +475,13 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             (generalised Bayes). 1, the default, is the plain posterior. Below 1 widens it to
             allow for model misspecification: with many frames the plain posterior is often
             narrower than the distance from its mean to the true label. Choose eta from labelled
-            data with :func:`bayesmotion.evaluate.calibrate_likelihood_power`.
+            data with :func:`bayesmotion.evaluate.calibrate_hpd_power`.
         emotion_starts: "nearest" (one projection from the nearest training frames) or
-            "levels" (one projection per emotion level, from the nearest frames of that level's
-            training trials; the best optimum is kept; K times the projection's cost).
+            "levels" (that start plus one per emotion level, from the nearest frames of that
+            level's training trials; the best optimum is kept; K + 1 times the projection's
+            cost). A better optimum is not always the right label: on the built-in handshakes
+            "levels" read two sad trials as neutral (91.7% against 100%), on the Bandai walks
+            it raised leave-one-clip-out accuracy from 43.8% to 56.2%.
     Returns:
         EmotionPosterior.
     """
