@@ -459,8 +459,9 @@ def test_hpd_power_calibration_recovers_an_overconfidence_factor():
     from bayesmotion.evaluate import _calibrated
 
     Ut = uniform_simplex_points(3, 2048, seed=3)
-    runs = [(None, None, None, np.eye(3)[0], -50.0 * Ut[:, 0], -50.0, 0.0, np.zeros(len(Ut)))
-            for _ in range(4)]
+    runs = [(None, None, None, np.eye(3)[0],
+             {"loglik_points": -50.0 * Ut[:, 0], "loglik_truth": -50.0, "log_prior_truth": 0.0,
+              "log_prior_points": np.zeros(len(Ut))}) for _ in range(4)]
     out = _calibrated([{"truth_loglik_drop": 50.0}] * 4, runs, ["a", "b", "c"], q, 10, 0, {})
     assert "no likelihood power" in out["error"]
     assert out["reachable_hpd_coverage"] == 0.0

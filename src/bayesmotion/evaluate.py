@@ -187,8 +187,10 @@ def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
     hpd = all(r["truth_loglik_drop"] is not None for r in rows)
     d2 = np.array([2 * r["truth_loglik_drop"] if hpd else r["truth_mahalanobis2"] for r in rows])
     if hpd:  # the regions' exact levels (importance sampling on the simplex), not chi-square
-        L, lt, lpt = (np.array([run[k] for run in runs]) for k in (4, 5, 6))
-        H = tempered_hpd_levels(L, lt, _ETA_GRID, runs[0][7], lpt)
+        L, lt, lpt, lp = (np.array([run[4][k] for run in runs])
+                          for k in ("loglik_points", "loglik_truth", "log_prior_truth",
+                                    "log_prior_points"))
+        H = tempered_hpd_levels(L, lt, _ETA_GRID, lp[0], lpt)
         # with a flat prior the levels only grow with eta (tempering moves mass onto the
         # likelihood's superlevel sets): the flattest posterior covers the most
         reachable = float(np.max(np.mean(H <= q, axis=1)))
@@ -206,7 +208,7 @@ def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
         def power(keep):
             return calibrate_likelihood_power(d2[keep], q, len(levels) - 1)
     everyone = np.arange(len(rows))
-    for i, (r, (fold, held, given, truth, *_)) in enumerate(zip(rows, runs, strict=True)):
+    for i, (r, (fold, held, given, truth, _)) in enumerate(zip(rows, runs, strict=True)):
         eta = power(everyone != i)
         ep = infer_emotion(fold, held, styles=given, n_steps=n_steps, seed=seed + i,
                            latent_uncertainty=False, likelihood_power=eta, **infer_kwargs)
@@ -308,6 +310,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         full_model = spec.fit(dataset, progress=progress, seed=seed, **fit_kwargs)
     levels = list(dataset.levels["emotion"])
     rows, runs = [], []
+    U = uniform_simplex_points(len(levels), seed=seed)  # shared by every fold's calibration
     for i, (train, held) in enumerate(dataset.leave_one_out()):
         keep = [r for r in range(len(dataset)) if r != i]
         fold = spec.fit(train, max_iter=refit_iter, progress=False, seed=seed,
@@ -319,14 +322,13 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         lo, hi = ep.interval(q)
         dens = ep.log_likelihood is not None
         if calibrate:
-            extra = ()
+            dens_at = None
             if dens:  # the clip's likelihood over the simplex, for the regions' exact levels
-                U = uniform_simplex_points(len(levels), seed=seed)
-                extra = (np.asarray(ep.log_likelihood(U)),
-                         float(np.asarray(ep.log_likelihood(truth[None]))[0]),
-                         float(ep._tempered(np.zeros(1), truth[None])[0]),
-                         np.asarray(ep._tempered(np.zeros(len(U)), U)))
-            runs.append((fold, held, given, truth, *extra))
+                dens_at = {"loglik_points": np.asarray(ep.log_likelihood(U)),
+                           "loglik_truth": float(np.asarray(ep.log_likelihood(truth[None]))[0]),
+                           "log_prior_truth": float(ep._tempered(np.zeros(1), truth[None])[0]),
+                           "log_prior_points": np.asarray(ep._tempered(np.zeros(len(U)), U))}
+            runs.append((fold, held, given, truth, dens_at))
         rows.append({"trial": held.name, "true": held.labels["emotion"], "pred": ep.label,
                      "mean": ep.mean.tolist(), "probabilities": ep.probabilities.tolist(),
                      "covered": ep.region_contains(truth, q),
