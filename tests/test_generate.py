@@ -121,6 +121,31 @@ def test_mean_rollout_variance_equals_the_per_step_predictive(tiny_model):
         np.testing.assert_allclose(r.I_var[t], expected, rtol=1e-9)
 
 
+def test_sampled_rollouts_map_down_by_the_same_means(tiny_model):
+    """Sampled rollouts are mapped down by means alone (``map_down_mean``, no per-frame O(N^2)
+    variances); those means must be the ones ``map_down`` gives with its variances."""
+    import jax.numpy as jnp
+
+    from bayesmotion.generate import map_down, map_down_mean
+    from bayesmotion.predict import style_vectors
+
+    r = tiny_model.generate(emotion="happy", n_frames=30, n_samples=2, seed=3)
+    P, A = tiny_model.predictor(), tiny_model.n_actors
+    f = tiny_model.spec.interaction_factors
+    int_s = tuple(style_vectors(P, f, [r.styles[k] for k in f]))
+    I = jnp.asarray(r.samples["I"][1])
+    full, _ = map_down(P, I, int_s, A)
+    means = map_down_mean(P, I, int_s, A)
+    for a in range(A):
+        np.testing.assert_allclose(np.asarray(means[a][0]), np.asarray(full[a][0]), rtol=1e-12,
+                                   atol=1e-12)
+        np.testing.assert_allclose(np.asarray(means[a][1]), np.asarray(full[a][1]), rtol=1e-12,
+                                   atol=1e-12)
+        np.testing.assert_allclose(r.samples["Y"][1, a], np.asarray(full[a][1]), rtol=1e-12,
+                                   atol=1e-12)
+    assert not np.allclose(r.samples["I"][0], r.samples["I"][1])
+
+
 def test_the_predictor_is_conditioned_once_per_model(tiny_model):
     assert tiny_model.predictor() is tiny_model.predictor()
     other = tiny_model.with_params(tiny_model.params)

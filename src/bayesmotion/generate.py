@@ -33,9 +33,11 @@ from .predict import (
     Predictor,
     noise_variances,
     predict_bottom,
+    predict_bottom_mean,
     predict_dynamics,
     predict_dynamics_mean,
     predict_interaction,
+    predict_interaction_mean,
     style_vectors,
 )
 
@@ -218,6 +220,16 @@ def map_down(P: Predictor, I, int_styles, n_actors: int):
     return out, Xv + noise["X"]
 
 
+@partial(jax.jit, static_argnames=("n_actors",))
+def map_down_mean(P: Predictor, I, int_styles, n_actors: int):
+    """:func:`map_down`'s means alone, [(X_a, Y_a)] per actor: what sampled rollouts need (their
+    spread is measured across samples), without the O(N^2) per-frame variances."""
+    Xm = predict_interaction_mean(P, I, list(int_styles))
+    q = Xm.shape[1] // n_actors
+    return [(Xm[:, a * q:(a + 1) * q], predict_bottom_mean(P, a, Xm[:, a * q:(a + 1) * q]))
+            for a in range(n_actors)]
+
+
 # --------------------------------------------------------------------------- decoding to motion
 def _anchor(model, codec, trial: int, actor: int, n_frames: int):
     anchor = np.asarray(model.trials[trial].anchors[actor])
@@ -329,7 +341,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
 def _map_and_decode_samples(model, P, I_s, int_s, trial):
     """Samples (S, T, Q_I) -> X, Y, angles, positions, each with a leading sample axis."""
     A = model.n_actors
-    outs, _ = jax.vmap(lambda I: map_down(P, I, int_s, A))(I_s)
+    outs = jax.vmap(lambda I: map_down_mean(P, I, int_s, A))(I_s)
     X = np.stack([np.asarray(o[0]) for o in outs], axis=1)  # (S, A, T, Q)
     Y = np.stack([np.asarray(o[1]) for o in outs], axis=1)
     angles, positions = [], []
