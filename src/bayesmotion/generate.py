@@ -226,8 +226,8 @@ def map_down_mean(P: Predictor, I, int_styles, n_actors: int):
     spread is measured across samples), without the O(N^2) per-frame variances."""
     Xm = predict_interaction_mean(P, I, list(int_styles))
     q = Xm.shape[1] // n_actors
-    return [(Xm[:, a * q:(a + 1) * q], predict_bottom_mean(P, a, Xm[:, a * q:(a + 1) * q]))
-            for a in range(n_actors)]
+    actors = [Xm[:, a * q:(a + 1) * q] for a in range(n_actors)]
+    return [(Xa, predict_bottom_mean(P, a, Xa)) for a, Xa in enumerate(actors)]
 
 
 # --------------------------------------------------------------------------- decoding to motion
