@@ -45,6 +45,7 @@ BENCHMARKS = [
     "bandai_inference",
     "infer_speed",
     "handshake_inference",
+    "posterior_convergence",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 

@@ -1,0 +1,121 @@
+"""Posterior convergence at the demo size: how many emcee steps give max R-hat <= 1.01 and min
+bulk ESS >= 400 over every sampled coordinate (the demo-size target of the Bayesian layer).
+
+The demo's model: ``load_handshakes(fps=10)`` without the 4 held-out trials (20 trials,
+N = 340 frames per actor), ``HGPDM().fit(max_iter=1000, seed=0)``; then
+``sample_posterior`` with its defaults (DE move, walkers started from the Laplace approximation,
+2 ndim + 2 walkers) for ``STEPS`` steps into an emcee HDF5 backend. R-hat (rank-normalised,
+split, arviz) and bulk/tail ESS are computed on the chain's first n steps for a series of n,
+each after the package's own burn-in rule (2 max tau, at most half the chain), with the walkers
+as arviz chains. The backend file lives in ``benchmarks/.cache`` under a hash of the fitted
+parameters, so a run stopped by the suite's timeout resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+CACHE = HERE / ".cache"
+SETTINGS = {"full": {"max_iter": 1000, "steps": 7000,
+                     "checkpoints": [600, 1000, 2000, 3000, 4000, 5000, 6000, 7000]},
+            "quick": {"max_iter": 150, "steps": 300, "checkpoints": [100, 200, 300]}}
+TARGET_RHAT, TARGET_ESS = 1.01, 400
+
+
+def demo_model(max_iter: int):
+    from bayesmotion import HGPDM, load_handshakes
+    from bayesmotion.demo import _split
+
+    train, _ = _split(load_handshakes(seed=0, fps=10.0))
+    return HGPDM().fit(train, max_iter=max_iter, seed=0, progress=False)
+
+
+def _key(model) -> str:
+    h = hashlib.sha1()
+    for k in sorted(model.params):
+        h.update(k.encode())
+        h.update(np.ascontiguousarray(model.params[k], dtype=np.float64).tobytes())
+    return h.hexdigest()[:12]
+
+
+def checkpoint(chain: np.ndarray, n: int) -> dict:
+    """Diagnostics of the first ``n`` steps of an emcee chain (steps, walkers, ndim)."""
+    import arviz as az
+    import emcee
+
+    from bayesmotion.posterior import _burn_thin
+
+    head = chain[:n]
+    with warnings.catch_warnings():  # short heads are expected; steps_over_max_tau says so
+        warnings.simplefilter("ignore")
+        tau = emcee.autocorr.integrated_time(head, quiet=True)
+        info = _burn_thin(tau, n, None, 1)
+    kept = np.swapaxes(head[info["burn"]:], 0, 1)  # (walkers, draws, ndim)
+    d = az.convert_to_dataset({"theta": kept})
+    rhat = np.asarray(az.rhat(d)["theta"])
+    bulk = np.asarray(az.ess(d, method="bulk")["theta"])
+    tail = np.asarray(az.ess(d, method="tail")["theta"])
+    return {"steps": n, "burn": info["burn"], "max_tau": float(np.max(tau)),
+            "steps_over_max_tau": float(n / np.max(tau)),
+            "max_rhat": float(rhat.max()), "worst_rhat_coordinate": int(rhat.argmax()),
+            "min_ess_bulk": float(bulk.min()), "min_ess_tail": float(tail.min()),
+            "met": bool(rhat.max() <= TARGET_RHAT and bulk.min() >= TARGET_ESS)}
+
+
+def run(quick: bool) -> dict:
+    import emcee
+    from _common import headline
+
+    from bayesmotion.posterior import sample_posterior
+
+    cfg = SETTINGS["quick" if quick else "full"]
+    t0 = time.perf_counter()
+    model = demo_model(cfg["max_iter"])
+    fit_s = time.perf_counter() - t0
+    CACHE.mkdir(exist_ok=True)
+    path = CACHE / f"posterior_convergence_{_key(model)}.h5"
+    resumed_from = (emcee.backends.HDFBackend(str(path), read_only=True).iteration
+                    if path.exists() else 0)
+    t0 = time.perf_counter()
+    post = sample_posterior(model, n_steps=cfg["steps"], seed=0, backend=str(path),
+                            progress=False)
+    sample_s = time.perf_counter() - t0
+    chain = emcee.backends.HDFBackend(str(path), read_only=True).get_chain()
+    per_step = sample_s / max(cfg["steps"] - resumed_from, 1)
+    points = [checkpoint(chain, n) for n in cfg["checkpoints"] if n <= chain.shape[0]]
+    for p in points:
+        p["sampling_seconds_from_scratch"] = p["steps"] * per_step
+    first = next((p for p in points if p["met"]), None)
+    last = points[-1]
+    names = post.target.names
+    out = {"settings": {**cfg, "model": "demo: load_handshakes(fps=10), 20 training trials, "
+                        f"HGPDM().fit(max_iter={cfg['max_iter']}, seed=0)",
+                        "sampler": "sample_posterior defaults (DEMove, Laplace start)",
+                        "n_walkers": post.info["n_walkers"], "ndim": post.target.ndim,
+                        "targets": {"max_rhat": TARGET_RHAT, "min_ess_bulk": TARGET_ESS}},
+           "fit_seconds": fit_s, "fit": {k: model.diagnostics[k] for k in
+                                         ("iterations", "objective", "converged", "message")},
+           "sampling_seconds": sample_s, "resumed_from_step": resumed_from,
+           "seconds_per_step": per_step, "acceptance": float(np.mean(post.acceptance)),
+           "checkpoints": points,
+           "worst_coordinate_names": sorted({names[p["worst_rhat_coordinate"]]
+                                             for p in points})}
+    note = (f"first met at {first['steps']} steps ({first['sampling_seconds_from_scratch']:.0f} s)"
+            if first else f"not met by {last['steps']} steps")
+    out["headline"] = [
+        headline(f"demo-size posterior (emcee, {post.target.ndim} dims): max R-hat after "
+                 f"{last['steps']} steps", last["max_rhat"], "", f"<= {TARGET_RHAT}",
+                 last["max_rhat"] <= TARGET_RHAT,
+                 f"{last['steps_over_max_tau']:.0f} max tau; {note}"),
+        headline("  min bulk ESS, same chain", last["min_ess_bulk"], "", f">= {TARGET_ESS}",
+                 last["min_ess_bulk"] >= TARGET_ESS,
+                 f"tail {last['min_ess_tail']:.0f}; {per_step:.2f} s per step of "
+                 f"{post.info['n_walkers']} walkers"),
+    ]
+    return out
