@@ -33,6 +33,11 @@ from .params import STYLE_PREFIX, simplex_to_style, style_log_jacobian, style_to
 
 __all__ = ["StyleRotations", "style_slices"]
 
+# over walkers, compiled once per shape (not per sampler)
+_TO_S = jax.jit(jax.vmap(style_to_simplex))
+_TO_U = jax.jit(jax.vmap(simplex_to_style))
+_LOG_JAC = jax.jit(jax.vmap(style_log_jacobian))
+
 
 def style_slices(unravel, x0) -> dict[str, np.ndarray]:
     """factor -> flat indices (K * (K - 1),) of its unconstrained style block, in C order."""
@@ -79,9 +84,6 @@ class StyleRotations(emcee.moves.Move):
                        for f in slices if np.asarray(concentration[f]).shape[0] >= 3]
         self._tries = 0
         self._accepts = 0
-        self._to_s = jax.jit(jax.vmap(style_to_simplex))
-        self._to_u = jax.jit(jax.vmap(simplex_to_style))
-        self._log_jac = jax.jit(jax.vmap(style_log_jacobian))
 
     @property
     def acceptance(self) -> float:
@@ -99,15 +101,15 @@ class StyleRotations(emcee.moves.Move):
             u = coords[ok][:, idx].reshape(-1, K, K - 1)
             if not len(u):
                 continue
-            S0 = np.asarray(self._to_s(jnp.asarray(u)), dtype=float)
+            S0 = np.asarray(_TO_S(jnp.asarray(u)), dtype=float)
             S = self._rotate(S0, conc, model.random)
             moved = np.any(S != S0, axis=(1, 2))
             if not moved.any():
                 continue
-            u_new = np.asarray(self._to_u(jnp.asarray(S)), dtype=float)
+            u_new = np.asarray(_TO_U(jnp.asarray(S)), dtype=float)
             change = (_log_dirichlet_kernel(S, conc) - _log_dirichlet_kernel(S0, conc)
-                      + np.asarray(self._log_jac(jnp.asarray(u_new)))
-                      - np.asarray(self._log_jac(jnp.asarray(u))))
+                      + np.asarray(_LOG_JAC(jnp.asarray(u_new)))
+                      - np.asarray(_LOG_JAC(jnp.asarray(u))))
             rows = np.flatnonzero(ok)[moved]
             sub = coords[rows]
             sub[:, idx] = u_new[moved].reshape(len(rows), -1)
