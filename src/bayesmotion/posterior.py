@@ -366,7 +366,10 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
     seconds = time.perf_counter() - t0
     chain = sampler.get_chain()  # (steps, W, ndim)
     lp = sampler.get_log_prob()
-    tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
+    # a walker that never moved in some coordinate makes emcee's autocorrelation 0/0: that
+    # coordinate's tau is then NaN, and _burn_thin reports the chain as too short
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
     info = _burn_thin(tau, chain.shape[0], burn, thin)
     sel = slice(info["burn"], None, info["thin"])
     return Posterior(target.model, target, np.swapaxes(chain[sel], 0, 1),
