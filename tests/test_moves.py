@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import bayesmotion as bm
-from bayesmotion.moves import StyleRotations, _plane_basis, style_slices
+from bayesmotion.moves import StyleRotations, plane_rotations, style_slices
 from bayesmotion.params import simplex_to_style, style_log_jacobian, style_to_simplex
 from bayesmotion.posterior import ChainTooShortWarning, Target, sample_posterior
 
@@ -23,11 +23,7 @@ def three_emotion_model():
 
 
 def _random_rotation(K, rng, scale=0.3):
-    B = _plane_basis(K)
-    G = scale * rng.standard_normal((K - 1, K - 1))
-    A = 0.5 * (G - G.T)
-    R = np.linalg.solve(np.eye(K - 1) - 0.5 * A, np.eye(K - 1) + 0.5 * A)
-    return B @ R @ B.T + 1.0 / K
+    return plane_rotations(scale * rng.standard_normal((K - 1, K - 1)))
 
 
 def test_plane_rotations_are_orthogonal_and_keep_rows_on_the_simplex_plane():

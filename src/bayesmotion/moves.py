@@ -31,7 +31,7 @@ from jax.flatten_util import ravel_pytree
 
 from .params import STYLE_PREFIX, simplex_to_style, style_log_jacobian, style_to_simplex
 
-__all__ = ["StyleRotations", "style_slices"]
+__all__ = ["StyleRotations", "plane_rotations", "style_slices"]
 
 # over walkers, compiled once per shape (not per sampler)
 _TO_S = jax.jit(jax.vmap(style_to_simplex))
@@ -58,6 +58,18 @@ def _plane_basis(K: int) -> np.ndarray:
     """(K, K-1) orthonormal basis of the plane orthogonal to the ones vector."""
     w, V = np.linalg.eigh(np.eye(K) - np.ones((K, K)) / K)
     return V[:, w > 0.5]
+
+
+def plane_rotations(G: np.ndarray) -> np.ndarray:
+    """(..., K-1, K-1) generators -> (..., K, K) rotations Q with Q Q^T = I and Q 1 = 1: the
+    Cayley transform R of the skew part of G (det 1; -G gives R^-1), acting on the plane
+    orthogonal to the ones vector."""
+    k = G.shape[-1]
+    B = _plane_basis(k + 1)
+    eye = np.eye(k)
+    A = 0.5 * (G - np.swapaxes(G, -1, -2))
+    R = np.linalg.solve(eye - 0.5 * A, eye + 0.5 * A)
+    return B @ R @ B.T + 1.0 / (k + 1)
 
 
 class StyleRotations(emcee.moves.Move):
@@ -111,9 +123,7 @@ class StyleRotations(emcee.moves.Move):
                       + np.asarray(_LOG_JAC(jnp.asarray(u_new)))
                       - np.asarray(_LOG_JAC(jnp.asarray(u))))
             rows = np.flatnonzero(ok)[moved]
-            sub = coords[rows]
-            sub[:, idx] = u_new[moved].reshape(len(rows), -1)
-            coords[rows] = sub
+            coords[np.ix_(rows, idx)] = u_new[moved].reshape(len(rows), -1)
             log_prob[rows] += change[moved]
         return emcee.State(coords, log_prob=log_prob, blobs=state.blobs,
                            random_state=state.random_state), accepted
@@ -121,15 +131,9 @@ class StyleRotations(emcee.moves.Move):
     def _rotate(self, S, conc, random) -> np.ndarray:
         """``n_rotations`` Metropolis steps S -> S Q (vectorised over walkers)."""
         n, K, _ = S.shape
-        B = _plane_basis(K)
-        eye = np.eye(K - 1)
         logp = _log_dirichlet_kernel(S, conc)
         for _ in range(self.n_rotations):
-            G = self.scale * random.randn(n, K - 1, K - 1)
-            A = 0.5 * (G - np.swapaxes(G, 1, 2))
-            R = np.linalg.solve(eye - 0.5 * A, eye + 0.5 * A)  # Cayley: orthogonal, det 1
-            Q = B @ R @ B.T + 1.0 / K
-            S_new = S @ Q
+            S_new = S @ plane_rotations(self.scale * random.randn(n, K - 1, K - 1))
             inside = np.all(S_new > 0, axis=(1, 2))
             logp_new = np.where(inside, _log_dirichlet_kernel(np.where(inside[:, None, None],
                                                                        S_new, S), conc),
