@@ -10,7 +10,10 @@ each after the package's own burn-in rule (2 max tau, at most half the chain), w
 as arviz chains. The backend file lives in ``benchmarks/.cache`` under a hash of the fitted
 parameters, so a run stopped by the suite's timeout resumes where it stopped.
 
-The recorded run (2026-11-22) predates the style-rotation move: it used the DE move alone.
+Recorded runs (2026-11-22), 7,000 steps each: the DE move alone reached max R-hat 1.24 and min
+bulk ESS 163 (max tau 447); DE followed by style rotations (the default since then, the run in
+results/) reached 1.12 and 298 (max tau 327, still growing; worst coordinates: hyperparameters
+and the two-level couple style).
 """
 
 from __future__ import annotations
