@@ -41,7 +41,8 @@ def demo_model(max_iter: int):
     return HGPDM().fit(train, max_iter=max_iter, seed=0, progress=False)
 
 
-# part of the cache key: a chain run with other default moves or coordinates is not resumed
+# part of the cache key, so a chain run with other default moves or coordinates is not resumed:
+# edit it whenever sample_posterior's default moves or sampled coordinates change
 SAMPLER_VERSION = "DE move followed by StyleRotations"
 
 
