@@ -16,7 +16,9 @@ Timed after warm-up (median of repeats), each producing ``n_frames`` frames of b
   conditioning function stays cached);
 * ``generate_public_16_samples``: ``n_samples=16`` (frames/s counted per mean frame and per
   generated frame, 17 T);
-* ``mean_only``: dynamics mean rollout + top-down mean mapping + decoding + FK, no variance;
+* ``mean_only``: dynamics mean rollout + top-down mean mapping + decoding + FK, no variance
+  at any layer (Taubert et al.'s mean prediction; before 2026-11-22 this row still computed
+  the per-frame variances of the dynamics and the top-down mapping, and overstated the cost);
 * ``dynamics_rollout_core``: the jitted ``lax.scan`` core alone (latent frames), mean and 16
   vmapped sampled rollouts;
 * a profile of the public call's parts: conditioning, dynamics rollout, top-down mapping,
@@ -122,7 +124,7 @@ def measure_model(model, T: int, repeats: int) -> dict:
     sampled = jax.jit(jax.vmap(lambda k: dynamics_rollout(P, I0, dyn_s, k, T - o, True)[0]))
 
     def mean_only():
-        I_gen, _ = dynamics_rollout(P, I0, dyn_s, key, T - o, False)
+        I_gen, _ = dynamics_rollout(P, I0, dyn_s, key, T - o, False, with_var=False)
         I = jax.numpy.concatenate([I0, I_gen])
         return _map_and_decode(model, P, I, int_s, r, with_var=False)
 

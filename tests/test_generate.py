@@ -172,3 +172,29 @@ def test_interval_coverage_counts_per_horizon():
     assert c["overall"] == {"0.5": 0.0, "0.9": 1.0}
     with pytest.raises(BayesmotionError, match="share one shape"):
         interval_coverage(truth[:, :5], mean, var)
+
+
+def test_mean_only_path_gives_the_mean_rollout_of_the_full_path(tiny_model):
+    """``with_var=False`` (dynamics scan and top-down mapping without the O(N^2) variances)
+    must reproduce the means of the path with variances, and skip the variances."""
+    import jax
+    import jax.numpy as jnp
+
+    from bayesmotion.generate import _map_and_decode, dynamics_rollout
+    from bayesmotion.predict import style_vectors
+
+    r = tiny_model.generate(emotion="sad", n_frames=25)
+    P, o = tiny_model.predictor(), tiny_model.spec.order
+    fd, fi = tiny_model.spec.dynamics_factors, tiny_model.spec.interaction_factors
+    dyn_s = tuple(style_vectors(P, fd, [r.styles[k][o:] for k in fd]))
+    int_s = tuple(style_vectors(P, fi, [r.styles[k] for k in fi]))
+    key = jax.random.PRNGKey(0)
+    I_mean, var = dynamics_rollout(P, jnp.asarray(r.I[:o]), dyn_s, key, 25 - o, False,
+                                   with_var=False)
+    assert var is None
+    np.testing.assert_allclose(np.asarray(I_mean), r.I[o:], rtol=1e-12, atol=1e-12)
+    trial = int(r.start.split("training trial ")[1].split()[0])
+    out = _map_and_decode(tiny_model, P, jnp.asarray(r.I), int_s, trial, with_var=False)
+    assert set(out) == {"X", "Y", "angles", "positions"}
+    for k in out:
+        np.testing.assert_allclose(out[k], getattr(r, k), rtol=1e-10, atol=1e-10)

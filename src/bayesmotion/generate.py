@@ -170,11 +170,13 @@ class Rollout:
 
 
 # --------------------------------------------------------------------------- the jitted core
-@partial(jax.jit, static_argnames=("n_steps", "sample"))
-def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool):
+@partial(jax.jit, static_argnames=("n_steps", "sample", "with_var"))
+def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
+                     with_var: bool = True):
     """Roll the dynamics forward n_steps from I0 (o, Q) with per-step styles (n_steps, K_f).
 
-    Returns (I (n_steps, Q), one-step variance (n_steps,) including the dynamics noise).
+    Returns (I (n_steps, Q), one-step variance (n_steps,) including the dynamics noise; None
+    for a mean rollout with ``with_var=False``).
 
     The mean rollout needs only the predictive means, O(M Q) per step inside ``lax.scan``;
     its one-step variances are computed afterwards for all steps at once (one product of L^-1
@@ -200,6 +202,8 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool):
         _, (I, v) = jax.lax.scan(sample_step, I0[::-1], (tuple(styles), keys))
         return I, v
     _, I = jax.lax.scan(mean_step, I0[::-1], tuple(styles))
+    if not with_var:
+        return I, None
     full = jnp.concatenate([I0, I])
     lags = jnp.stack([full[o - 1 - k:o - 1 - k + n_steps] for k in range(o)])
     _, var = predict_dynamics(P, lags, list(styles))
@@ -356,6 +360,9 @@ def _map_and_decode_samples(model, P, I_s, int_s, trial):
 
 def _map_and_decode(model, P, I, int_s, trial, with_var=True):
     A = model.n_actors
+    if not with_var:  # means alone (no O(N^2) per-frame variances): one "sample", the mean
+        return {k: v[0] for k, v in _map_and_decode_samples(model, P, I[None], int_s,
+                                                             trial).items()}
     layers_out, X_var = map_down(P, I, int_s, A)
     X = np.stack([np.asarray(l[0]) for l in layers_out])
     Y = np.stack([np.asarray(l[1]) for l in layers_out])
@@ -363,13 +370,8 @@ def _map_and_decode(model, P, I, int_s, trial, with_var=True):
     ang, ang_var, pos, pos_var, sks = [], [], [], [], []
     for a in range(A):
         v, var, sk = decode_actor(model, a, Y[a], Y_var[a], trial)
-        if with_var:
-            p, pv = _positions_with_var(sk, v, var)
-        else:
-            p, pv = _positions(sk, v), None
+        p, pv = _positions_with_var(sk, v, var)
         ang.append(v), ang_var.append(var), pos.append(p), pos_var.append(pv), sks.append(sk)
-    if not with_var:
-        return {"X": X, "Y": Y, "angles": np.stack(ang), "positions": np.stack(pos)}
     # the first o frames are observed: no predictive variance there
     o = model.spec.order
     Xv = np.broadcast_to(np.asarray(X_var), (A, X.shape[1])).copy()
