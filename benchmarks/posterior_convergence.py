@@ -123,7 +123,8 @@ def run(quick: bool) -> dict:
         headline(f"demo-size posterior (emcee, {post.target.ndim} dims): max R-hat after "
                  f"{last['steps']} steps", last["max_rhat"], "", f"<= {TARGET_RHAT}",
                  last["max_rhat"] <= TARGET_RHAT,
-                 f"{last['steps_over_max_tau']:.0f} max tau; {note}"),
+                 f"chain = {last['steps_over_max_tau']:.0f} x max tau ({last['max_tau']:.0f} "
+                 f"steps); {note}"),
         headline("  min bulk ESS, same chain", last["min_ess_bulk"], "", f">= {TARGET_ESS}",
                  last["min_ess_bulk"] >= TARGET_ESS,
                  f"tail {last['min_ess_tail']:.0f}; {per_step:.2f} s per step of "
