@@ -1,5 +1,6 @@
 """The hierarchy: log-posterior assembly, MAP fit, jitter handling, model files."""
 
+import io
 import json
 import zipfile
 from importlib.resources import files
@@ -175,8 +176,130 @@ def test_corrupted_and_foreign_files_raise_model_file_error(fitted, tmp_path):
             load(bad)
 
 
-def test_pickled_object_arrays_are_refused(tmp_path):
-    path = tmp_path / "evil.npz"
-    np.savez(path, __meta__=np.array([{"format": "bayesmotion-hgpdm"}], dtype=object))
+def test_pickled_object_arrays_are_refused_without_running_them(fitted, tmp_path):
+    """A valid model file plus one pickled entry: loading must refuse it, and the pickle's
+    payload must not run (the marker file stays absent). Were the archive read with
+    ``allow_pickle=True``, the payload would run while the entry is read."""
+    marker = tmp_path / "payload_ran"
+    good = tmp_path / "good.npz"
+    fitted.save(good)
+    evil = tmp_path / "evil.npz"
+    payload = np.array([_Payload(str(marker))], dtype=object)
+    buf = io.BytesIO()
+    np.save(buf, payload, allow_pickle=True)
+    with zipfile.ZipFile(good) as zin, zipfile.ZipFile(evil, "w") as zout:
+        for item in zin.infolist():
+            zout.writestr(item, zin.read(item.filename))
+        zout.writestr("param/evil.npy", buf.getvalue())
     with pytest.raises(ModelFileError):
-        load(path)
+        load(evil)
+    assert not marker.exists()
+    # the check above can fail: the same archive read with pickles allowed runs the payload
+    with np.load(evil, allow_pickle=True) as z:
+        z["param/evil"]
+    assert marker.exists()
+
+
+class _Payload:
+    def __init__(self, path):
+        self.path = path
+
+    def __reduce__(self):  # unpickling creates a directory at ``path``
+        import os
+
+        return (os.mkdir, (self.path,))
+
+
+def _rewrite(src, dst, change):
+    """Copy a model archive, replacing entry name -> change(name, array) (None drops it)."""
+    with np.load(src, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    out = {}
+    for k, v in arrays.items():
+        v = change(k, v)
+        if v is not None:
+            out[k] = v
+    np.savez(dst, **out)
+    return dst
+
+
+def _with_meta(src, dst, edit):
+    def change(k, v):
+        if k != "__meta__":
+            return v
+        meta = json.loads(v.tobytes().decode())
+        edit(meta)
+        return np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    return _rewrite(src, dst, change)
+
+
+def test_every_corrupted_byte_of_a_model_file_raises_model_file_error(fitted, tmp_path):
+    """Flipping bytes inside the compressed entries (zlib errors, bad CRCs, garbage arrays)
+    gives a ModelFileError, never another exception."""
+    good = tmp_path / "good.npz"
+    fitted.save(good)
+    raw = bytearray(good.read_bytes())
+    with zipfile.ZipFile(good) as z:
+        entries = [(i.header_offset + 30 + len(i.filename), i.compress_size)
+                   for i in z.infolist()]
+    rng = np.random.default_rng(0)
+    n = 0
+    for start, size in entries:
+        for pos in rng.integers(start, start + max(size, 1), size=4):
+            bad = bytearray(raw)
+            bad[pos] ^= 0xFF
+            path = tmp_path / "bad.npz"
+            path.write_bytes(bytes(bad))
+            try:
+                load(path)
+            except ModelFileError:
+                n += 1
+            except Exception as e:  # noqa: BLE001 -- what the test is about
+                pytest.fail(f"byte {pos}: {type(e).__name__}: {e}")
+            # else: a flip that the CRC misses and that still decodes; allowed, if rare
+    assert n > 0.9 * 4 * len(entries)
+
+
+@pytest.mark.parametrize("case", ["X_1d", "no_gamma", "alpha_3", "levels_vs_onehot",
+                                  "nan_param", "extra_param", "lengths"])
+def test_inconsistent_model_files_are_refused_at_load(fitted, tmp_path, case):
+    good = tmp_path / "good.npz"
+    fitted.save(good)
+    dst = tmp_path / f"{case}.npz"
+    if case == "X_1d":
+        _rewrite(good, dst, lambda k, v: v.ravel() if k == "param/X" else v)
+    elif case == "no_gamma":
+        _with_meta(good, dst, lambda m: m["params"].remove("log_gamma"))
+    elif case == "alpha_3":
+        _rewrite(good, dst, lambda k, v: v[:3] if k == "param/log_alpha" else v)
+    elif case == "levels_vs_onehot":
+        _with_meta(good, dst, lambda m: m["levels"]["emotion"].append("bored"))
+    elif case == "nan_param":
+        _rewrite(good, dst, lambda k, v: v * np.nan if k == "param/log_beta" else v)
+    elif case == "extra_param":
+        def extra(k, v):
+            return v
+        _rewrite(good, dst, extra)
+        _with_meta(dst, dst, lambda m: m["params"].append("lengths"))
+    elif case == "lengths":
+        _rewrite(good, dst, lambda k, v: v[::-1] + np.array([1] + [0] * (v.size - 1))
+                 if k == "lengths" else v)
+    with pytest.raises(ModelFileError):
+        load(dst)
+
+
+def test_saved_files_get_the_usual_permissions(fitted, tmp_path):
+    """Model and netCDF files are created 0o666 & ~umask, like any file, and keep the mode of a
+    file they replace (a temporary file's private 0o600 must not leak)."""
+    import os
+
+    umask = os.umask(0o022)
+    try:
+        path = tmp_path / "model.npz"
+        fitted.save(path)
+        assert path.stat().st_mode & 0o777 == 0o644
+        path.chmod(0o640)
+        fitted.save(path)
+        assert path.stat().st_mode & 0o777 == 0o640
+    finally:
+        os.umask(umask)

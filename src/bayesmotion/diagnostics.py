@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 import warnings
-from pathlib import Path
 
 import numpy as np
 
@@ -58,17 +55,10 @@ def _from_dict(az, post, coords, dims, acc, observed):
 
 def save_netcdf(idata, path) -> str:
     """Write InferenceData to netCDF atomically (temp file, then rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".nc")
-    os.close(fd)
-    try:
-        idata.to_netcdf(tmp, engine="h5netcdf")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    from .data.bvh import atomic_path
+
+    with atomic_path(path) as tmp:  # usual permissions, removed on failure
+        idata.to_netcdf(str(tmp), engine="h5netcdf")
     return str(path)
 
 

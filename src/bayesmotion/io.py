@@ -14,14 +14,15 @@ from __future__ import annotations
 
 import io as _io
 import json
-import os
-import tempfile
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
+from .data.bvh import atomic_path
 from .errors import BayesmotionError, ModelFileError
+from .params import STYLE_PREFIX
 
 FORMAT = "bayesmotion-hgpdm"
 FORMAT_VERSION = 1
@@ -70,16 +71,8 @@ def save_model(model, path) -> Path:
     arrays["__meta__"] = np.frombuffer(json.dumps(meta, default=_json_default).encode(), np.uint8)
     buf = _io.BytesIO()
     np.savez_compressed(buf, **arrays)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(buf.getvalue())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp:  # usual permissions, removed on failure
+        tmp.write_bytes(buf.getvalue())
     return path
 
 
@@ -89,7 +82,8 @@ def _read_archive(path: Path) -> tuple[dict, dict]:
     try:
         with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as e:
+    except (OSError, ValueError, zipfile.BadZipFile, zlib.error, EOFError, KeyError,
+            NotImplementedError) as e:
         raise ModelFileError(f"{path}: not a bayesmotion model file (unreadable archive: {e})") \
             from None
     if "__meta__" not in arrays:
@@ -148,11 +142,44 @@ def load(path):
 
 
 def _check_shapes(model, path):
-    N = int(np.sum(model.data.lengths))
-    X, I = model.params.get("X"), model.params.get("I")
-    if X is None or I is None or X.shape[1] != N or I.shape[0] != N:
-        raise ModelFileError(f"{path}: latent arrays do not match the {N} training frames")
-    for a, Y in enumerate(model.data.Y):
+    """Every array the model uses has the shape its metadata implies, and finite values: a
+    file that passes cannot fail later inside ``log_posterior`` or ``generate``."""
+    def bad(msg):
+        raise ModelFileError(f"{path}: corrupted model file: {msg}")
+
+    spec, data, params = model.spec, model.data, model.params
+    lengths = np.asarray(data.lengths)
+    if lengths.ndim != 1 or lengths.size != len(model.trials) or np.any(lengths < 1):
+        bad(f"trial lengths {lengths.tolist()} do not match the {len(model.trials)} trials")
+    if any(int(n) != r.n_frames for n, r in zip(lengths, model.trials, strict=True)):
+        bad("trial lengths disagree with the trial records")
+    N, R, A = int(lengths.sum()), lengths.size, len(model.codecs)
+    o = spec.order
+    expected = {"X": (A, N, spec.latent_dim), "I": (N, spec.interaction_dim),
+                "log_gamma": (3,), "log_beta": (3,), "log_alpha": (2 + 2 * o,)}
+    if set(data.onehot) != set(spec.factors) or set(model.levels) != set(spec.factors):
+        bad(f"style factors {sorted(data.onehot)} / levels {sorted(model.levels)} do not match "
+            f"the specification's {sorted(spec.factors)}")
+    for f in spec.factors:
+        K = len(model.levels[f])
+        h = np.asarray(data.onehot[f])
+        if h.shape != (R, K) or not np.all((h == 0) | (h == 1)) or np.any(h.sum(1) != 1):
+            bad(f"labels of factor {f!r} are not one-hot ({R}, {K}) over its levels")
+        if STYLE_PREFIX + f in params:
+            expected[STYLE_PREFIX + f] = (K, K - 1)
+    missing = sorted(k for k in expected if k not in params)  # style keys: only if present
+    unknown = sorted(set(params) - set(expected))
+    if missing or unknown:
+        bad(f"parameters missing {missing}, unknown {unknown}")
+    for k, shape in expected.items():
+        v = np.asarray(params[k])
+        if v.shape != shape:
+            bad(f"parameter {k} has shape {v.shape}, expected {shape}")
+        if not np.issubdtype(v.dtype, np.floating) or not np.all(np.isfinite(v)):
+            bad(f"parameter {k} is not a finite float array")
+    for a, Y in enumerate(data.Y):
         if Y.shape != (N, model.codecs[a].dim):
-            raise ModelFileError(f"{path}: training poses of actor {a} have shape {Y.shape}, "
-                                 f"expected {(N, model.codecs[a].dim)}")
+            bad(f"training poses of actor {a} have shape {Y.shape}, expected "
+                f"{(N, model.codecs[a].dim)}")
+        if not np.all(np.isfinite(Y)):
+            bad(f"training poses of actor {a} are not finite")
