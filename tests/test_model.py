@@ -303,3 +303,21 @@ def test_saved_files_get_the_usual_permissions(fitted, tmp_path):
         assert path.stat().st_mode & 0o777 == 0o640
     finally:
         os.umask(umask)
+
+
+def test_an_objective_that_is_never_finite_raises_instead_of_converging():
+    """With no finite evaluation the optimiser used to stop at once and report converged=True
+    at the start point; it must say what failed instead."""
+    logp = lambda p, j: jnp.sum(p["a"]) - jnp.inf  # noqa: E731
+    with pytest.raises(bm.BayesmotionError, match="not finite at any point"):
+        map_optimize(logp, {"a": np.zeros(3)}, max_iter=5, progress=False)
+
+
+@pytest.mark.parametrize("bad", [{"init_var": 0.0}, {"log_scale": -1.0}, {"gamma_loc": (1, 1)},
+                                 {"beta_loc": (1.0, 0.0, 1.0)}, {"alpha_noise": float("nan")},
+                                 {"style_kappa": -1.0}, {"style_kappa": "ten"}])
+def test_invalid_priors_are_refused_by_name(bad):
+    from bayesmotion.params import Priors
+
+    with pytest.raises(bm.BayesmotionError, match=f"Priors.{next(iter(bad))}"):
+        Priors(**bad)

@@ -12,6 +12,8 @@ import scipy.optimize
 from jax.flatten_util import ravel_pytree
 from tqdm.auto import tqdm
 
+from .errors import BayesmotionError
+
 JITTER_LADDER = (1e-8, 1e-6, 1e-4, 1e-2)  # relative to the mean diagonal of each kernel matrix
 
 
@@ -73,6 +75,11 @@ def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: f
                                            "maxcor": 20})
     bar.close()
     seconds = time.perf_counter() - t0
+    if state["best"][1] is None:
+        raise BayesmotionError(
+            f"{desc}: the log-density is not finite at any point the optimiser tried, even with "
+            f"jitter {JITTER_LADDER[-1]:g} on every kernel diagonal (initial objective "
+            f"{initial:g}); check the priors (e.g. init_var > 0) and that the data are finite")
     x = res.x if res.fun <= state["best"][0] else state["best"][1]
     v, g = fun(x)
     diagnostics = {

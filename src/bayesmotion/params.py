@@ -34,6 +34,8 @@ import numpy as np
 import numpyro.distributions as dist
 from numpyro.distributions.transforms import StickBreakingTransform
 
+from .errors import BayesmotionError
+
 STYLE_PREFIX = "style:"
 _STICK = StickBreakingTransform()
 
@@ -63,6 +65,25 @@ class Priors:
     style_kappa: float = 10.0
     init_var: float = 1.0
 
+    def __post_init__(self):
+        def positive(name, v, n=None):
+            a = np.asarray(v, dtype=np.float64) if _numeric(v) else None
+            if a is None or (n is not None and a.shape != (n,)) or (n is None and a.ndim) \
+                    or not np.all(np.isfinite(a)) or np.any(a <= 0):
+                what = f"{n} positive numbers" if n else "a positive number"
+                raise BayesmotionError(f"Priors.{name} must be {what}, got {v!r}")
+
+        positive("log_scale", self.log_scale)
+        positive("gamma_loc", self.gamma_loc, 3)
+        positive("beta_loc", self.beta_loc, 3)
+        for name in ("alpha_rbf", "alpha_ls", "alpha_lin", "alpha_noise", "init_var"):
+            positive(name, getattr(self, name))
+        k = np.asarray(self.style_kappa, dtype=np.float64) if _numeric(self.style_kappa) \
+            else None
+        if k is None or k.ndim or not np.isfinite(k) or k < 0:
+            raise BayesmotionError(f"Priors.style_kappa must be a number >= 0, got "
+                                   f"{self.style_kappa!r}")
+
     def alpha_loc(self, order: int) -> np.ndarray:
         return np.array([self.alpha_rbf] + [self.alpha_ls] * order + [self.alpha_lin] * order
                         + [self.alpha_noise])
@@ -73,6 +94,14 @@ class Priors:
     @classmethod
     def from_dict(cls, d: dict) -> Priors:
         return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()})
+
+
+def _numeric(v) -> bool:
+    try:
+        np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        return False
+    return not isinstance(v, str | bytes | bool)
 
 
 def hyper_prior_locs(priors: Priors, order: int) -> dict[str, np.ndarray]:
