@@ -124,3 +124,19 @@ def test_analytic_position_variance_equals_the_jacfwd_propagation(seed):
     np.testing.assert_allclose(np.asarray(pos), reference_fk(sk, np.asarray(values)), atol=1e-10)
     np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-10, atol=1e-12)
     assert np.all(np.asarray(got)[:, 0] > 0)  # the root moves with its position channels
+
+
+def test_integer_and_float32_channels_give_float64_positions_with_exact_offsets():
+    """Integer channel values must not truncate the bone offsets (they are cast to the
+    values' dtype inside FK) and float32 must not leak into the positions."""
+    import bayesmotion as bm
+    from bayesmotion.data.fk import forward_kinematics, numpy_positions
+
+    m = bm.load_handshakes(fps=5.0)[0].actors[0]
+    zeros = np.zeros((3, m.skeleton.n_channels))
+    ref = numpy_positions(m.skeleton, zeros)
+    assert np.abs(ref - np.round(ref)).max() > 0.1  # the offsets are not integers
+    for dtype in (np.int64, np.int32, np.float32):
+        out = forward_kinematics(m.skeleton, zeros.astype(dtype))
+        assert out.dtype == np.float64
+        np.testing.assert_allclose(np.asarray(out), ref, rtol=1e-12, atol=1e-12)

@@ -169,7 +169,9 @@ def forward_kinematics(skeleton: Skeleton, values, with_end_sites: bool = False)
         (..., J, 3) world positions (``J + n_end_sites`` rows with end sites).
     """
     f = _jitted_fk(layout_key(skeleton), bool(with_end_sites))
-    values = jnp.asarray(values)
+    # float64 whatever comes in: integer channels would truncate the bone offsets (cast to the
+    # values' dtype inside), float32 would leak into the positions
+    values = jnp.asarray(values, dtype=jnp.float64)
     lead = values.shape[:-1]
     flat = values.reshape(-1, values.shape[-1])
     n = flat.shape[0]
@@ -337,7 +339,7 @@ def forward_kinematics_with_variance(skeleton: Skeleton, values, var):
     values (T, C) with independent variances (T, C); compiled per joint layout and padded
     frame bucket, like :func:`forward_kinematics`."""
     f = _jitted_fk_variance(layout_key(skeleton))
-    values, var = np.asarray(values), np.asarray(var)
+    values, var = np.asarray(values, np.float64), np.asarray(var, np.float64)
     n = values.shape[0]
     pad = ((0, _bucket(n) - n), (0, 0))
     p, v = f(jnp.asarray(np.pad(values, pad)), jnp.asarray(np.pad(var, pad)),
