@@ -157,9 +157,9 @@ def _check_shapes(model, path):
     o = spec.order
     expected = {"X": (A, N, spec.latent_dim), "I": (N, spec.interaction_dim),
                 "log_gamma": (3,), "log_beta": (3,), "log_alpha": (2 + 2 * o,)}
-    if set(data.onehot) != set(spec.factors) or set(model.levels) != set(spec.factors):
-        bad(f"style factors {sorted(data.onehot)} / levels {sorted(model.levels)} do not match "
-            f"the specification's {sorted(spec.factors)}")
+    if set(data.onehot) != set(spec.factors) or not set(spec.factors) <= set(model.levels):
+        bad(f"labels of factors {sorted(data.onehot)} (levels of {sorted(model.levels)}) do not "
+            f"match the specification's factors {sorted(spec.factors)}")
     for f in spec.factors:
         K = len(model.levels[f])
         h = np.asarray(data.onehot[f])

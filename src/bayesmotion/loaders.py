@@ -15,9 +15,10 @@ def load_data(spec: str, fps: float | None = None) -> MotionDataset:
     """Load a dataset from a specification string.
 
     * ``builtin:handshakes`` -- the built-in emotional handshakes (``load_handshakes``);
-    * a folder with ``labels.csv`` (columns ``file, emotion, couple``; rows with the same
-      ``trial`` column, or consecutive rows of one couple with ``actor`` 0/1, form two-actor
-      trials; otherwise each file is a one-actor trial);
+    * a folder with ``labels.csv`` (columns ``file, emotion`` and optionally ``couple, trial,
+      actor``): rows with the same ``trial`` value form one trial, their actors ordered by the
+      integer ``actor`` column (0, 1); a row without a ``trial`` value is a one-actor trial;
+      ``fps`` resamples every file (needed when the files' frame rates differ);
     * a Bandai Namco dataset-1 root (files ``dataset-1_*.bvh``).
     """
     if spec.startswith("builtin:"):
@@ -51,11 +52,25 @@ def _from_labels(root: Path, fps):
         groups.setdefault(r.get("trial") or f"row{i}", []).append(r)
     trials = []
     for name, rs in groups.items():
-        rs = sorted(rs, key=lambda r: int(r.get("actor") or 0))
+        try:
+            actors = [int(r.get("actor") or 0) for r in rs]
+        except ValueError:
+            raise BayesmotionError(f"{root / 'labels.csv'}: trial {name!r}: the actor column "
+                                   f"must hold integers 0, 1, got "
+                                   f"{[r.get('actor') for r in rs]}") from None
+        if sorted(actors) != list(range(len(rs))):
+            raise BayesmotionError(f"{root / 'labels.csv'}: trial {name!r} has actors {actors}; "
+                                   f"expected 0{', 1' if len(rs) > 1 else ''} once each")
+        for col in ("emotion", "couple"):
+            if len({r.get(col) or "" for r in rs}) > 1:
+                raise BayesmotionError(f"{root / 'labels.csv'}: the rows of trial {name!r} "
+                                       f"disagree on {col}")
+        rs = [r for _, r in sorted(zip(actors, rs, strict=True), key=lambda ar: ar[0])]
         motions = tuple(read_bvh(root / r["file"]) for r in rs)
+        if fps:
+            motions = tuple(m.resample(fps) for m in motions)
         labels = {"emotion": rs[0]["emotion"]}
         if rs[0].get("couple"):
             labels["couple"] = rs[0]["couple"]
         trials.append(Trial(motions, labels, name))
-    ds = MotionDataset(trials, name=str(root))
-    return ds.resample(fps) if fps else ds
+    return MotionDataset(trials, name=str(root))

@@ -176,6 +176,13 @@ class MotionDataset:
             raise BayesmotionError(f"dataset {self.name!r} has no trials")
         if len({t.n_actors for t in trials}) > 1:
             raise BayesmotionError("all trials of a dataset must have the same number of actors")
+        rates = [t.fps for t in trials]
+        if max(rates) - min(rates) > 1e-6 * max(rates):
+            lo, hi = trials[int(np.argmin(rates))], trials[int(np.argmax(rates))]
+            raise BayesmotionError(
+                f"dataset {self.name!r} mixes frame rates ({lo.name!r} at {lo.fps:g} fps, "
+                f"{hi.name!r} at {hi.fps:g} fps); resample the trials to one rate first "
+                f"(Trial.resample / MotionDataset.resample, or --fps on the command line)")
         levels = {k: tuple(v) for k, v in dict(self.levels).items()}
         for t in trials:
             for k, v in t.labels.items():
