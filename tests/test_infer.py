@@ -529,3 +529,22 @@ def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
         leave_one_out(tiny_data, tiny_model, infer_kwargs={"couple": "c1"})
     with pytest.raises(bm.BayesmotionError, match="3 trials"):
         leave_one_out(tiny_data.take([0, 1]), tiny_model, calibrate=True)
+
+
+def test_leave_one_out_fails_on_unreadable_baseline_features_before_any_fit(tiny_data,
+                                                                             monkeypatch):
+    """A skeleton the affective features cannot read must fail at once (it used to fail after
+    every fold's refit and inference, losing them)."""
+    from bayesmotion import evaluate
+
+    def no_fit(*a, **k):
+        raise AssertionError("fitted before the baselines were checked")
+
+    monkeypatch.setattr("bayesmotion.model.HGPDM.fit", no_fit)
+
+    def unreadable(*a, **k):
+        raise bm.BayesmotionError("no shipped JointMap fits this skeleton")
+
+    monkeypatch.setattr(evaluate, "trial_features", unreadable)
+    with pytest.raises(bm.BayesmotionError, match="JointMap"):
+        evaluate.leave_one_out(tiny_data, None, refit_iter=1, n_steps=10)

@@ -306,6 +306,9 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
                                f"them")
     if calibrate and len(dataset) < 3:
         raise BayesmotionError(f"calibrate=True needs at least 3 trials, got {len(dataset)}")
+    # the baselines first: they are cheap, and a skeleton their features cannot read must fail
+    # before any fit, not after the folds' refits
+    b = _baselines(dataset, "emotion") if baselines else None
     if full_model is None:
         full_model = spec.fit(dataset, progress=progress, seed=seed, **fit_kwargs)
     levels = list(dataset.levels["emotion"])
@@ -363,7 +366,6 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         except BayesmotionError as e:  # keep the plain results
             out["calibrated"] = {"error": str(e)}
     if baselines:
-        b = _baselines(dataset, "emotion")
         out["baselines"] = {k: float(np.mean([p == t for p, t in zip(v, true, strict=True)]))
                             for k, v in b.items()}
     out["seconds"] = time.perf_counter() - t0
