@@ -198,3 +198,22 @@ def test_mean_only_path_gives_the_mean_rollout_of_the_full_path(tiny_model):
     assert set(out) == {"X", "Y", "angles", "positions"}
     for k in out:
         np.testing.assert_allclose(out[k], getattr(r, k), rtol=1e-10, atol=1e-10)
+
+
+def test_unknown_style_factors_and_untrained_levels_are_refused(tiny_model):
+    """A misspelt factor used to be ignored silently, and a level with no training trials gave
+    a rollout that collapsed to zero after the start frames."""
+    from .conftest import make_tiny_dataset
+
+    with pytest.raises(BayesmotionError, match="no style factor \\['contnet'\\]"):
+        tiny_model.generate(emotion="happy", n_frames=10, contnet="walk")
+    ds = make_tiny_dataset()
+    wider = bm.HGPDM(latent_dim=3, interaction_dim=3).fit(
+        bm.MotionDataset(ds.trials, {"emotion": ("happy", "sad", "angry"), "couple": ("c1",)}),
+        max_iter=3, progress=False)
+    with pytest.raises(BayesmotionError, match="\\['angry'\\] have no training trials"):
+        wider.generate(emotion="angry", n_frames=10)
+    with pytest.raises(BayesmotionError, match="no training trials"):
+        wider.generate(emotion=[0.5, 0.0, 0.5], n_frames=10)
+    r = wider.generate(emotion=[0.5, 0.5, 0.0], n_frames=10)  # trained levels only: fine
+    assert np.all(np.isfinite(r.positions))

@@ -297,6 +297,10 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
         raise BayesmotionError(f"n_frames must exceed the dynamics order ({model.spec.order})")
     if n_samples < 0:
         raise BayesmotionError("n_samples must be >= 0")
+    unknown = sorted(set(styles) - set(model.spec.factors))
+    if unknown:
+        raise BayesmotionError(f"the model has no style factor {unknown}; its factors are "
+                               f"{list(model.spec.factors)}")
     values = dict(styles)
     if "emotion" in model.levels:
         values["emotion"] = emotion
@@ -304,6 +308,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
         values["couple"] = couple if couple is not None else model.levels["couple"][0]
     coords = {f: resolve_style(model, f, values.get(f, model.levels[f][0]), n_frames)
               for f in model.spec.factors}
+    _check_trained_levels(model, coords)
     P = model.predictor() if predictor is None else predictor
     o = model.spec.order
     if isinstance(start, str) and start == "prior":
@@ -340,6 +345,20 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
                    extrapolated=any(is_extrapolated(c) for c in coords.values()), start=desc,
                    n_observed=o, I=I, I_var=I_var, skeletons=mean.pop("skeletons"),
                    samples=samples, sample_var=sample_var, **mean)
+
+
+def _check_trained_levels(model, coords: dict) -> None:
+    """Refuse weight on a level no training trial has: its (one-hot) style vector is orthogonal
+    to every training trial's, so the kernels see no data and the rollout collapses to the
+    prior mean (zero) after the start frames."""
+    for f, c in coords.items():
+        seen = np.asarray(model.data.onehot[f]).sum(0) > 0
+        used = np.any(np.abs(np.asarray(c)) > 1e-12, axis=0)
+        empty = [model.levels[f][k] for k in np.flatnonzero(used & ~seen)]
+        if empty:
+            trained = [model.levels[f][k] for k in np.flatnonzero(seen)]
+            raise BayesmotionError(f"{f} level(s) {empty} have no training trials in this model "
+                                   f"(trained: {trained}); the model cannot generate them")
 
 
 def _map_and_decode_samples(model, P, I_s, int_s, trial):
