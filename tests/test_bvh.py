@@ -474,3 +474,22 @@ def test_fuzz_keyword_soup(words):
 @given(text=st.one_of(st.text(max_size=300), st.binary(max_size=300)))
 def test_fuzz_random_text_and_bytes(text):
     check_parse(text)
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"names": ("root", "left arm")}, "whitespace"),
+    ({"names": ("root", "")}, "non-empty"),
+    ({"offsets": np.array([[0.0, 0, 0], [np.nan, 0, 0]])}, "finite"),
+    ({"end_sites": {1: np.array([np.inf, 0, 0])}}, "finite"),
+])
+def test_skeletons_that_bvh_cannot_hold_are_refused(change, match):
+    """Such skeletons used to be accepted and written to BVH files that read_bvh rejects."""
+    from bayesmotion.data.skeleton import Skeleton
+
+    base = {"names": ("root", "arm"), "parents": (-1, 0),
+            "offsets": np.array([[0.0, 0, 0], [1.0, 0, 0]]),
+            "channels": (("Xposition", "Yposition", "Zposition", "Zrotation"), ("Zrotation",)),
+            "end_sites": {1: np.array([0.5, 0, 0])}}
+    Skeleton(**base)  # valid as given
+    with pytest.raises(BayesmotionError, match=match):
+        Skeleton(**{**base, **change})

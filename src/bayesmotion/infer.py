@@ -468,7 +468,9 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
         prior: Dirichlet concentrations over the emotion levels (default flat, all ones).
         method: "emcee" (the only sampler for now; NUTS is used for the model posterior).
         seed: seeds the walkers.
-        n_walkers, n_steps: emcee settings (per posterior draw).
+        n_walkers, n_steps: emcee settings. With a Posterior as ``model`` the steps are shared
+            out: each of the ``n_draws`` draws runs ``n_steps // n_draws + 50`` steps (the 50
+            covering each chain's burn-in), and their samples are pooled.
         max_iter: L-BFGS iterations of the projection.
         latent_uncertainty: compute the diagonal Laplace sd of the latents.
         likelihood_power: eta in the tempered posterior p(s) p(clip | s)^eta over the styles

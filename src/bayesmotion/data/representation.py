@@ -405,4 +405,6 @@ def check_layout(expected: Skeleton, got: Skeleton) -> None:
         raise SkeletonMismatchError(
             f"skeleton does not match the model: missing joints {missing}, unexpected {extra}")
     raise SkeletonMismatchError("skeleton has the model's joints but a different tree or "
-                                "channel layout; retarget it with bayesmotion.data.retarget")
+                                "channel layout (parents, channel order or Euler orders "
+                                "differ); bayesmotion does not retarget: export the clip with "
+                                "the model's skeleton layout")

@@ -65,6 +65,14 @@ class Skeleton:
                 f"Skeleton fields disagree: {J} names, {len(self.parents)} parents, "
                 f"{self.offsets.shape[0]} offsets, {len(self.channels)} channel lists"
             )
+        bad_names = [n for n in self.names if not isinstance(n, str) or not n
+                     or any(ch.isspace() for ch in n) or n in ("{", "}")]
+        if bad_names:
+            raise BayesmotionError(f"Skeleton joint names must be non-empty and free of "
+                                   f"whitespace and braces (BVH tokens), got {bad_names}")
+        if not np.all(np.isfinite(self.offsets)) or not all(
+                np.all(np.isfinite(v)) for v in self.end_sites.values()):
+            raise BayesmotionError("Skeleton offsets (and End Site offsets) must be finite")
         if len(set(self.names)) != J:
             dup = sorted({n for n in self.names if self.names.count(n) > 1})
             raise BayesmotionError(f"Skeleton has duplicate joint names: {dup}")
