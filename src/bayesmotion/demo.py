@@ -13,6 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .data.bvh import atomic_write_text
+from .plots import save_figure
+
 SETTINGS = {
     # quick: sized for the 3-minute target on 2 cores; its chains are far too short to trust
     # (summary and report carry the ChainTooShortWarning and R-hat): it shows every step working
@@ -90,7 +93,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     ax.plot(d["trace"])
     ax.set(xlabel="L-BFGS iteration", ylabel="negative log-posterior", title="MAP fit")
     fig.tight_layout()
-    fig.savefig(out / "fit_trace.png", dpi=90)
+    save_figure(fig, out / "fit_trace.png", dpi=90)
     plt.close(fig)
     stage("fit")
     # 2. posterior
@@ -107,7 +110,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
         warnings.filterwarnings("ignore", message="More chains")  # walkers outnumber draws
         axes = post.plot_trace(var_names=["gamma", "beta", "alpha"], combined=True)
     fig = np.ravel(axes)[0].figure
-    fig.savefig(out / "trace.png", dpi=70)
+    save_figure(fig, out / "trace.png", dpi=70)
     plt.close(fig)
     stage("posterior")
     # 3. posterior-predictive handshakes
@@ -154,7 +157,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     ax.plot([0, 1], [0, 1], "k:")
     ax.set(xlabel="generated happy weight s", ylabel="inferred happy coordinate")
     fig.tight_layout()
-    fig.savefig(out / "interpolation.png", dpi=90)
+    save_figure(fig, out / "interpolation.png", dpi=90)
     plt.close(fig)
     stage("interpolation")
     # 5. inference on held-out trials
@@ -191,7 +194,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     stage("inference")
     summary["stage_seconds"] = stages
     summary["seconds_total"] = time.perf_counter() - t_all
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, default=float))
     sections = [
         ("MAP fit", [out / "fit_trace.png", f"<p>{d['iterations']} iterations, "
                      f"{d['seconds']:.1f} s, {d['message']}</p>"]),
