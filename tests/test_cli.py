@@ -5,6 +5,7 @@ import shutil
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from bayesmotion.cli import main
@@ -100,6 +101,11 @@ def test_demo_quick_writes_every_file(tmp_path):
     assert 0 <= first["0.5"] <= first["0.9"] <= 1
     bins = s["inference"]["position_coverage_by_horizon"]
     assert bins[0]["from_s"] == 0 and len(bins) >= 2
+    on = s["online"]
+    assert on["fractions"] == [0.25, 0.5, 1.0] and len(on["mean_coordinate_entropy"]) == 3
+    assert np.all(np.isfinite(on["mean_coordinate_entropy"]))
+    assert on["entropy_decreases"] == (on["mean_coordinate_entropy"][-1]
+                                       < on["mean_coordinate_entropy"][0])
     assert s["seconds_total"] > 0
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:

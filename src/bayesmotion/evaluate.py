@@ -372,6 +372,51 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
     return out
 
 
+def online_sharpening(model, trials, fractions=(0.25, 0.5, 0.75, 1.0), seed: int = 0,
+                      **infer_kwargs) -> dict:
+    """How the emotion posterior sharpens as a clip's frames arrive (online inference).
+
+    Each trial is read from its first ``ceil(f * T)`` frames for every fraction ``f`` (at least
+    the dynamics order + 1 frames) and its emotion inferred; reported per fraction: the mean over
+    trials of the coordinates' differential entropy
+    (:attr:`EmotionPosterior.coordinate_entropy`) and of the label entropy
+    (:attr:`EmotionPosterior.entropy`), and the fraction of trials inferred correctly. The
+    trials should be held out of ``model``'s training data.
+
+    Args:
+        model: a FittedHGPDM (or a Posterior, as for :func:`infer_emotion`).
+        trials: labelled Trials (their labels of the model's other factors are given).
+        fractions: increasing prefix fractions in (0, 1].
+        **infer_kwargs: further options of :func:`infer_emotion`.
+    """
+    fr = np.asarray(fractions, dtype=float)
+    if fr.ndim != 1 or fr.size < 2 or np.any(np.diff(fr) <= 0) or fr[0] <= 0 or fr[-1] > 1:
+        raise BayesmotionError(f"fractions must increase within (0, 1], at least two, got "
+                               f"{list(fractions)}")
+    fitted = getattr(model, "model", model)
+    o = fitted.spec.order
+    per_trial = []
+    for i, t in enumerate(trials):
+        given = {f: t.labels[f] for f in fitted.spec.factors if f != "emotion"}
+        n = t.n_frames
+        rows = []
+        for f in fr:
+            k = min(n, max(o + 1, int(np.ceil(f * n))))
+            ep = infer_emotion(model, t.select(slice(0, k)), styles=given, seed=seed + i,
+                               latent_uncertainty=False, **infer_kwargs)
+            rows.append({"frames": k, "coordinate_entropy": ep.coordinate_entropy,
+                         "label_entropy": ep.entropy, "correct": ep.label == t.labels["emotion"]})
+        per_trial.append({"trial": t.name, "prefixes": rows})
+    mean = {key: [float(np.mean([p["prefixes"][j][key] for p in per_trial]))
+                  for j in range(fr.size)]
+            for key in ("coordinate_entropy", "label_entropy", "correct")}
+    return {"fractions": fr.tolist(), "trials": per_trial,
+            "mean_coordinate_entropy": mean["coordinate_entropy"],
+            "mean_label_entropy": mean["label_entropy"], "accuracy": mean["correct"],
+            "entropy_decreases": bool(mean["coordinate_entropy"][-1]
+                                      < mean["coordinate_entropy"][0])}
+
+
 def format_confusion(result: dict) -> str:
     """Plain-text table: rows = inferred, columns = intended (percent)."""
     levels = result["levels"]

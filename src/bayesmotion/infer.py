@@ -268,6 +268,17 @@ class EmotionPosterior:
         return self.levels[int(np.argmax(self.probabilities))]
 
     @property
+    def coordinate_entropy(self) -> float:
+        """Differential entropy (nats) of the emotion coordinates, in the Gaussian approximation
+        of the samples of the first K - 1 coordinates (the simplex's chart; the last coordinate
+        is 1 minus their sum): 0.5 log det(2 pi e Cov). It keeps falling as a posterior sharpens
+        after :attr:`entropy` (of the label probabilities) has reached 0."""
+        s = self._flat()[:, :-1]
+        C = np.atleast_2d(np.cov(s, rowvar=False))
+        sign, logdet = np.linalg.slogdet(2 * np.pi * np.e * C)
+        return float(0.5 * logdet) if sign > 0 else float("-inf")
+
+    @property
     def entropy(self) -> float:
         """Entropy (nats) of ``probabilities``: 0 when certain, log K when uninformed."""
         p = self.probabilities
