@@ -71,9 +71,9 @@ def profile_parts(model, P, T: int, repeats: int) -> dict:
     import jax.numpy as jnp
     from _common import block, timeit
 
-    from bayesmotion.data.fk import forward_kinematics_with_variance_many
     from bayesmotion.generate import (
         _positions,
+        _positions_with_var,
         decode_actor,
         dynamics_rollout,
         map_down,
@@ -102,10 +102,8 @@ def profile_parts(model, P, T: int, repeats: int) -> dict:
         "decode Y -> channels (NumPy)":
             lambda: [decode_actor(model, a, Y[a], Yv[a], r) for a in range(A)],
         "forward kinematics": fk_only,
-        "positions + variance (analytic FK Jacobian, actors in one call)":
-            lambda: forward_kinematics_with_variance_many([sk for *_, sk in dec],
-                                                          [v for v, *_ in dec],
-                                                          [var for _, var, _ in dec]),
+        "positions + variance (analytic FK Jacobian)":
+            lambda: [_positions_with_var(sk, v, var) for v, var, sk in dec],
     }
     return {name: timeit(fn, repeats=repeats, warmup=1)["median_s"]
             for name, fn in stages.items()}
@@ -153,7 +151,8 @@ def measure_model(model, T: int, repeats: int) -> dict:
     prof = profile_parts(model, P, T, repeats)
     total = out["generate_public"]["median_s"]
     out["profile_s"] = prof
-    out["profile_fraction_of_generate_public"] = {k: v / total for k, v in prof.items()}
+    out["profile_fraction_of_generate_public"] = {k: v / total for k, v in prof.items()
+                                                  if "_positions_with_var" not in k}
     return out
 
 

@@ -140,25 +140,3 @@ def test_integer_and_float32_channels_give_float64_positions_with_exact_offsets(
         out = forward_kinematics(m.skeleton, zeros.astype(dtype))
         assert out.dtype == np.float64
         np.testing.assert_allclose(np.asarray(out), ref, rtol=1e-12, atol=1e-12)
-
-
-def test_variance_fk_of_several_actors_in_one_call_equals_one_call_each():
-    import bayesmotion as bm
-    from bayesmotion.data.fk import (
-        forward_kinematics_with_variance,
-        forward_kinematics_with_variance_many,
-    )
-
-    t = bm.load_handshakes(fps=5.0)[0]
-    rng = np.random.default_rng(0)
-    sks = [m.skeleton for m in t.actors]
-    vals = [m.values for m in t.actors]
-    var = [rng.uniform(0.1, 1.0, m.values.shape) for m in t.actors]
-    assert not np.allclose(sks[0].offsets, sks[1].offsets)  # offsets differ, layout shared
-    P, V = forward_kinematics_with_variance_many(sks, vals, var)
-    for a in range(2):
-        p, v = forward_kinematics_with_variance(sks[a], vals[a], var[a])
-        np.testing.assert_allclose(P[a], p, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(V[a], v, rtol=1e-12, atol=1e-12)
-    P1, V1 = forward_kinematics_with_variance_many(sks[:1], vals[:1], var[:1])  # one actor
-    np.testing.assert_allclose(P1[0], P[0], rtol=1e-12, atol=1e-12)

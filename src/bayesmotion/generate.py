@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .data.fk import forward_kinematics, forward_kinematics_with_variance_many
+from .data.fk import forward_kinematics, forward_kinematics_with_variance
 from .data.motion import Motion
 from .errors import BayesmotionError
 from .predict import (
@@ -269,6 +269,13 @@ def _positions(sk, values) -> np.ndarray:
     return np.asarray(forward_kinematics(sk, values))
 
 
+def _positions_with_var(sk, values, var):
+    """Joint positions and their first-order variance (analytic FK Jacobian, see
+    :func:`bayesmotion.data.fk.forward_kinematics_with_variance`)."""
+    p, v = forward_kinematics_with_variance(sk, values, var)
+    return np.asarray(p), np.asarray(v)
+
+
 # --------------------------------------------------------------------------- the public driver
 def _start_trial(model, styles, start) -> int:
     if isinstance(start, int | np.integer):
@@ -379,9 +386,11 @@ def _map_and_decode(model, P, I, int_s, trial, with_var=True):
     X = np.stack([np.asarray(l[0]) for l in layers_out])
     Y = np.stack([np.asarray(l[1]) for l in layers_out])
     Y_var = np.stack([np.asarray(l[2]) for l in layers_out])
-    ang, ang_var, sks = zip(*(decode_actor(model, a, Y[a], Y_var[a], trial) for a in range(A)),
-                            strict=True)
-    pos, pos_var = forward_kinematics_with_variance_many(sks, ang, ang_var)  # one call
+    ang, ang_var, pos, pos_var, sks = [], [], [], [], []
+    for a in range(A):
+        v, var, sk = decode_actor(model, a, Y[a], Y_var[a], trial)
+        p, pv = _positions_with_var(sk, v, var)
+        ang.append(v), ang_var.append(var), pos.append(p), pos_var.append(pv), sks.append(sk)
     # the first o frames are observed: no predictive variance there
     o = model.spec.order
     Xv = np.broadcast_to(np.asarray(X_var), (A, X.shape[1])).copy()

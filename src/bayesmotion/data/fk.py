@@ -345,29 +345,3 @@ def forward_kinematics_with_variance(skeleton: Skeleton, values, var):
     p, v = f(jnp.asarray(np.pad(values, pad)), jnp.asarray(np.pad(var, pad)),
              jnp.asarray(skeleton.offsets))
     return p[:n], v[:n]
-
-
-@lru_cache(maxsize=64)
-def _jitted_fk_variance_batch(layout: tuple):
-    return jax.jit(jax.vmap(partial(_fk_with_variance, layout=layout)))
-
-
-def forward_kinematics_with_variance_many(skeletons, values, var):
-    """:func:`forward_kinematics_with_variance` for several motions (one per actor, say): one
-    vmapped call when they share a joint layout and frame count (the bone offsets may differ),
-    else one call each. Returns lists of positions and variances (T, J, 3)."""
-    skeletons = list(skeletons)
-    values = [np.asarray(v, np.float64) for v in values]
-    var = [np.asarray(v, np.float64) for v in var]
-    keys = {layout_key(sk) for sk in skeletons}
-    if len(skeletons) < 2 or len(keys) > 1 or len({v.shape for v in values}) > 1:
-        out = [forward_kinematics_with_variance(sk, v, w)
-               for sk, v, w in zip(skeletons, values, var, strict=True)]
-        return [p for p, _ in out], [w for _, w in out]
-    n = values[0].shape[0]
-    pad = ((0, 0), (0, _bucket(n) - n), (0, 0))
-    f = _jitted_fk_variance_batch(keys.pop())
-    p, w = f(jnp.asarray(np.pad(np.stack(values), pad)), jnp.asarray(np.pad(np.stack(var), pad)),
-             jnp.asarray(np.stack([sk.offsets for sk in skeletons])))
-    p, w = np.asarray(p[:, :n]), np.asarray(w[:, :n])
-    return list(p), list(w)
