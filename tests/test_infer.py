@@ -569,3 +569,30 @@ def test_leave_one_out_fails_on_unreadable_baseline_features_before_any_fit(tiny
     monkeypatch.setattr(evaluate, "trial_features", unreadable)
     with pytest.raises(bm.BayesmotionError, match="JointMap"):
         evaluate.leave_one_out(tiny_data, None, refit_iter=1, n_steps=10)
+
+
+def test_credible_regions_of_degenerate_posteriors_and_off_simplex_points():
+    """Identical samples made the Mahalanobis distance 0 everywhere (every point 'inside');
+    points off the simplex and levels outside (0, 1) were accepted."""
+    from bayesmotion.infer import EmotionPosterior
+
+    s = np.broadcast_to(np.array([0.9, 0.1]), (2, 50, 2)).copy()
+    ep = EmotionPosterior(("a", "b"), s, {}, np.zeros(s.shape[:2]))
+    assert ep.region_contains([0.9, 0.1]) and not ep.region_contains([0.0, 1.0])
+    spread = EmotionPosterior(("a", "b"), np.random.default_rng(0).dirichlet([30, 5], (2, 50)),
+                              {}, np.zeros((2, 50)))
+    with pytest.raises(bm.BayesmotionError, match="simplex"):
+        spread.region_contains([5.0, -3.0])
+    for q in (1.2, 0.0):
+        with pytest.raises(bm.BayesmotionError, match="credible level"):
+            spread.interval(q)
+
+
+def test_online_and_frame_arguments_are_checked(tiny_model, tiny_data):
+    with pytest.raises(bm.BayesmotionError, match="step"):
+        next(bm.infer_online(tiny_model, tiny_data[0], step=0))
+    with pytest.raises(bm.BayesmotionError, match="frames must be a slice"):
+        bm.infer_emotion(tiny_model, tiny_data[0], frames=3)
+    # the model has one couple level: a given couple is still checked, not ignored
+    with pytest.raises(bm.BayesmotionError, match="couple"):
+        bm.infer_emotion(tiny_model, tiny_data[0], couple="nonexistent")

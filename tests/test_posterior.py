@@ -182,3 +182,43 @@ def test_posterior_predictive_decomposes_variance(tiny_model):
     np.testing.assert_allclose(r.positions_var, parts["within"] + parts["between"])
     assert np.all(parts["between"][:, 3:] >= 0) and parts["between"][:, 3:].sum() > 0
     assert r.samples["positions"].shape[0] == 8
+    # the law of total variance, checked against samples rather than restated: at the first
+    # generated step every sample is drawn from its draw's one-step predictive N(m_d, v_d), so
+    # the pooled samples' variance must match E_d v_d + Var_d m_d (the reported I_var). On this
+    # model the between part is only 0.03-1.4% of it, so this checks the within part (the GP's
+    # one-step variance incl. noise) against the samples; the between part is checked above
+    o, n = tiny_model.spec.order, 1500
+    r1 = post.generate(emotion="sad", n_frames=o + 1, n_samples=n, n_draws=4, seed=5)
+    x = r1.samples["I"][:, o]  # (4 n, Q) pooled over draws
+    total = r1.I_var[o]
+    assert r1.variance_parts["I"]["between"][o].sum() > 0  # the draws do differ
+    se = total * np.sqrt(2 / x.shape[0]) * 1.3  # sd of a variance estimate (+30%: 4 clusters)
+    assert np.all(np.abs(x.var(0) - total) < 4 * se), (x.var(0), total)
+    assert np.all(np.abs(x.mean(0) - r1.I[o]) < 4 * np.sqrt(total / x.shape[0]))
+
+
+def test_resuming_a_file_written_for_another_model_is_refused(tiny_model, tmp_path):
+    """emcee resumes from the log-densities stored with the last step; a file written for a
+    refit of the same size would have mixed two posteriors silently."""
+    from .conftest import make_tiny_dataset
+
+    h5 = tmp_path / "chain.h5"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        bm.sample_posterior(tiny_model, n_steps=12, backend=h5, progress=False, burn=1, thin=1)
+        same = bm.sample_posterior(tiny_model, n_steps=16, backend=h5, progress=False, burn=1,
+                                   thin=1)  # the same model resumes
+    assert same.info["n_steps"] == 16
+    other = bm.HGPDM(latent_dim=3, interaction_dim=3).fit(make_tiny_dataset(), max_iter=5,
+                                                          progress=False)
+    with pytest.raises(bm.BayesmotionError, match="another posterior"):
+        bm.sample_posterior(other, n_steps=20, backend=h5, progress=False, burn=1, thin=1)
+
+
+def test_an_impossible_burn_is_refused_before_sampling(tiny_model, monkeypatch):
+    def no_target(*a, **k):
+        raise AssertionError("the sampler was set up before burn was checked")
+
+    monkeypatch.setattr("bayesmotion.posterior.Target", no_target)
+    with pytest.raises(bm.BayesmotionError, match="burn must be in"):
+        bm.sample_posterior(tiny_model, n_steps=100, burn=100, progress=False)

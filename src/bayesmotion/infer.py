@@ -154,6 +154,7 @@ class EmotionPosterior:
 
     def interval(self, q: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
         """Equal-tailed central ``q`` credible interval of each coordinate: (lower, upper)."""
+        _check_level(q)
         lo, hi = np.quantile(self._flat(), [0.5 - q / 2, 0.5 + q / 2], axis=0)
         return lo, hi
 
@@ -166,8 +167,13 @@ class EmotionPosterior:
         contain a vertex of the simplex, which is where a categorical label's true coordinates
         lie: equal-tailed intervals of a posterior on the open simplex never reach 0 or 1.
         """
+        _check_level(q)
+        c = self._coords(coords, on_simplex=True)
+        flat = self._flat()[:, :-1]
+        if np.all(flat == flat[0]):  # degenerate samples: the region is their single point
+            return bool(np.all(c == flat[0]))
         dist = self._mahalanobis2()
-        return bool(dist(self._coords(coords)) <= np.quantile(dist(self._flat()[:, :-1]), q))
+        return bool(dist(c) <= np.quantile(dist(flat), q))
 
     def log_density(self, coords) -> np.ndarray:
         """Unnormalised log posterior density on the simplex (tempered when the likelihood power
@@ -237,10 +243,13 @@ class EmotionPosterior:
         scales it by about eta (:func:`bayesmotion.evaluate.calibrate_likelihood_power`)."""
         return float(self._mahalanobis2()(self._coords(coords)))
 
-    def _coords(self, coords):
+    def _coords(self, coords, on_simplex: bool = False):
         c = np.asarray(coords, dtype=np.float64)
         if c.shape != (len(self.levels),):
             raise BayesmotionError(f"coords must have {len(self.levels)} entries, got {c.shape}")
+        if on_simplex and (np.any(c < -1e-9) or abs(c.sum() - 1) > 1e-6):
+            raise BayesmotionError(f"coords must lie on the simplex (>= 0, summing to 1), got "
+                                   f"{c.tolist()}")
         return c[:-1]
 
     def _mahalanobis2(self):
@@ -319,6 +328,11 @@ class EmotionPosterior:
                 f"{tempered}); mean {coords}")
 
     __repr__ = __str__
+
+
+def _check_level(q) -> None:
+    if not isinstance(q, int | float | np.floating) or not 0 < q < 1:
+        raise BayesmotionError(f"the credible level q must lie in (0, 1), got {q!r}")
 
 
 def _init_latents(model, Ys, B, rows=None):
@@ -407,8 +421,8 @@ def _style_setup(model, given: dict, prior):
     fixed, conc, inferred = {}, {}, []
     for f in model.spec.factors:
         K = len(model.levels[f])
-        if K == 1:  # a single level: the style is trivially [1]
-            fixed[f] = np.ones(1)
+        if K == 1:  # a single level: the style is trivially [1] (a given value is still checked)
+            fixed[f] = _coords(model, f, given[f]) if f in given else np.ones(1)
         elif f == "emotion" or f not in given:
             inferred.append(f)
             c = np.ones(K) if (f != "emotion" or prior is None) else np.asarray(prior, float)
@@ -471,7 +485,8 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
     Args:
         model: a FittedHGPDM, or a Posterior (the answer then pools ``n_draws`` draws).
         clip: a Trial, one or two Motions, BVH path(s), or model-space poses (T, D) / (A, T, D).
-        frames: a slice or index array of frames to use (online inference: ``slice(0, k)``).
+        frames: a slice or index array of frames to use (online inference: ``slice(0, k)``),
+            counted after the clip is resampled to the model's frame rate.
         couple: the clip's couple (label or coordinates); inferred when None.
         styles: other style factors of the clip that are known, factor -> label or coordinates
             (e.g. ``{"content": "walk-left"}``); a factor neither given nor the emotion is
@@ -537,6 +552,14 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
 
     Ys = clip_poses(model, clip)
     if frames is not None:
+        ok = isinstance(frames, slice)
+        if not ok and not isinstance(frames, int | np.integer | str):
+            idx = np.asarray(frames)
+            ok = idx.ndim == 1 and idx.dtype.kind in "iu"
+        if not ok:
+            raise BayesmotionError(f"frames must be a slice or a 1-D integer index array of the "
+                                   f"clip's frames (counted at the model's {model.fps:g} fps), "
+                                   f"got {frames!r}")
         Ys = [Y[frames] for Y in Ys]
     T = Ys[0].shape[0]
     o = model.spec.order
@@ -647,7 +670,11 @@ def _pool(parts: list[EmotionPosterior]) -> EmotionPosterior:
 
 
 def infer_online(model, clip, *, start: int | None = None, step: int = 5, **kwargs):
-    """Yield an EmotionPosterior for growing prefixes of the clip (frames arriving online)."""
+    """Yield an EmotionPosterior for growing prefixes of the clip (frames arriving online):
+    the first ``start`` frames (default order + 3), then ``step`` more at a time, frames counted
+    at the model's frame rate (the clip is resampled to it first)."""
+    if int(step) != step or step < 1:
+        raise BayesmotionError(f"step must be a positive number of frames, got {step!r}")
     n = clip_poses(model, clip)[0].shape[0]
     k = start or (model.spec.order + 3)
     while True:

@@ -285,7 +285,9 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         n_walkers: emcee walkers (default ``2 * ndim + 2``, even).
         n_steps: emcee steps per walker (NUTS: samples per chain after as many warm-up steps).
         burn, thin: discarded leading steps and thinning; by default chosen from the integrated
-            autocorrelation time tau (burn = 2 max tau, thin = max(1, min tau / 2)).
+            autocorrelation time tau (burn = 2 max tau, thin = max(1, min tau / 2)). NUTS:
+            ``burn`` is the number of warm-up (adaptation) steps, default ``n_steps``; 0 means
+            no step-size or mass-matrix adaptation.
         seed: seeds the walker ball, the moves and NUTS.
         backend: path of an emcee HDF5 file. An existing file with the same dimensions is resumed
             from its last step until it holds ``n_steps`` steps (nothing already saved is lost).
@@ -306,13 +308,16 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         a Posterior. A ``ChainTooShortWarning`` is issued when the chain is shorter than 50
         autocorrelation times.
     """
+    if burn is not None and not 0 <= burn < n_steps:
+        raise BayesmotionError(f"burn must be in [0, n_steps = {n_steps}), got {burn}")
     target = Target(fitted)
     centre, cdiag = target.conditional_map(progress=False)
     if method == "emcee":
         post = _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend,
                           progress, init, ball, moves)
     elif method == "nuts":
-        post = _run_nuts(target, centre, n_steps, burn, thin, seed, progress, n_chains, init)
+        post = _run_nuts(target, centre, n_steps, burn, thin, seed, progress, n_chains, init,
+                         ball)
     else:
         raise BayesmotionError(f"method must be 'emcee' or 'nuts', got {method!r}")
     post.info["conditional_map"] = {k: cdiag[k] for k in ("objective", "iterations", "converged")}
@@ -341,6 +346,7 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
             if shape != (W, ndim):
                 raise BayesmotionError(f"backend {backend} holds a run of shape {shape}, this "
                                        f"run needs {(W, ndim)}; use another file")
+            _check_resumed_density(be, log_prob, backend)
             resume, todo = True, max(0, n_steps - be.iteration)
         else:
             be.reset(W, ndim)
@@ -379,6 +385,21 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
                                "rotation_acceptance": getattr(moves, "acceptance", None)})
 
 
+def _check_resumed_density(be, log_prob, backend) -> None:
+    """A resumed run continues from the log-densities stored with its last step; they must be
+    this posterior's. Recomputed at the stored walkers, they differ (by hundreds of nats) when
+    the file was written for another model, e.g. a refit of the same size; the style rotations
+    carry the stored values forward by increments, hence the small tolerance."""
+    last = be.get_last_sample()
+    fresh = log_prob(np.asarray(last.coords))
+    stored = np.asarray(last.log_prob, dtype=np.float64)
+    if not np.allclose(fresh, stored, rtol=1e-7, atol=1e-6, equal_nan=True):
+        worst = float(np.nanmax(np.abs(fresh - stored)))
+        raise BayesmotionError(f"backend {backend} holds a run of another posterior: its stored "
+                               f"log-densities differ from this model's by up to {worst:.3g} "
+                               f"nats at the same walkers; use another file")
+
+
 def _burn_thin(tau, n_steps, burn, thin):
     info = {}
     tmax = float(np.nanmax(tau)) if np.all(np.isfinite(tau)) else float("inf")
@@ -397,7 +418,7 @@ def _burn_thin(tau, n_steps, burn, thin):
     return info
 
 
-def _run_nuts(target, centre, n_steps, burn, thin, seed, progress, n_chains, init):
+def _run_nuts(target, centre, n_steps, burn, thin, seed, progress, n_chains, init, ball):
     from numpyro.infer import MCMC, NUTS
 
     warm = n_steps if burn is None else burn
@@ -405,7 +426,7 @@ def _run_nuts(target, centre, n_steps, burn, thin, seed, progress, n_chains, ini
     mcmc = MCMC(kernel, num_warmup=warm, num_samples=n_steps, num_chains=n_chains,
                 thinning=thin or 1, progress_bar=progress, chain_method="sequential")
     rng = np.random.default_rng(seed)
-    init = jnp.asarray(_start_points(target, centre, n_chains, init, 1e-3, rng))
+    init = jnp.asarray(_start_points(target, centre, n_chains, init, ball, rng))
     t0 = time.perf_counter()
     mcmc.run(jax.random.PRNGKey(seed), init_params=init, extra_fields=("accept_prob",
                                                                         "potential_energy"))
