@@ -280,15 +280,24 @@ def blocked_gaussian_loglik(K_of_rows, Y, noise_var, blocks: Blocks, jitter=0.0)
         blocks: the grouping.
     """
     D = Y.shape[1]
+    idx, mask = jnp.asarray(blocks.idx), jnp.asarray(blocks.mask)
 
-    def one(ix, m):
+    def build(ix, m):
         mm = m[:, None] & m[None, :]
-        K = jnp.where(mm, K_of_rows(ix), 0.0) + jnp.diag(jnp.where(m, noise_var, 1.0))
-        Yb = jnp.where(m[:, None], Y[ix], 0.0)
-        return gaussian_loglik(K, Yb, jitter) + 0.5 * jnp.sum(~m) * D * LOG_2PI
+        return jnp.where(mm, K_of_rows(ix), 0.0) + jnp.diag(jnp.where(m, noise_var, 1.0))
 
-    vals = jax.vmap(one)(jnp.asarray(blocks.idx), jnp.asarray(blocks.mask))
-    return jnp.sum(vals)
+    Ks = jax.vmap(build)(idx, mask)
+    # the dense path's jitter, jitter * mean(diag K) over the real rows, added to the real rows
+    # only: padding rows keep exactly unit variance, whose constant is removed below
+    diag = jnp.diagonal(Ks, axis1=1, axis2=2)
+    scale = jnp.sum(jnp.where(mask, diag, 0.0)) / jnp.sum(mask)
+    Ks = Ks + jax.vmap(jnp.diag)(jnp.where(mask, jitter * scale, 0.0))
+
+    def one(K, ix, m):
+        Yb = jnp.where(m[:, None], Y[ix], 0.0)
+        return gaussian_loglik(K, Yb, 0.0) + 0.5 * jnp.sum(~m) * D * LOG_2PI
+
+    return jnp.sum(jax.vmap(one)(Ks, idx, mask))
 
 
 def blocked_style_gplvm_loglik(I, Z, beta, blocks: Blocks, jitter=0.0):
