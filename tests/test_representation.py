@@ -189,3 +189,25 @@ def test_one_actor_codec_fields_survive_save_and_load(bandai_root, tmp_path):
     old = tmp_path / "old.npz"
     np.savez(old, **arrays)
     assert bm.load(old).codecs[0].branch is None
+
+
+def test_decode_defaults_to_the_rate_the_codec_was_fitted_at(tmp_path):
+    """decode used to assume 30 fps: a 15 fps walk came back with its root integrated at 1/30 s
+    per frame, labelled 30 fps. The rate is also kept in model files."""
+    import bayesmotion as bm
+
+    trial = bm.load_handshakes(fps=5.0)[0]
+    m = trial.actors[0]
+    for mode in ("velocity", "heading"):
+        codec = PoseCodec.fit([m], root_mode=mode)
+        assert codec.fps == m.fps
+        enc = codec.encode(m)
+        back = codec.decode(enc.Y, enc.anchor, skeleton=m.skeleton)
+        assert back.fps == m.fps
+        np.testing.assert_allclose(back.positions(), m.positions(), atol=1e-9)
+    model = bm.HGPDM(latent_dim=2, interaction_dim=2).fit(
+        bm.load_handshakes(fps=5.0).take([0, 1]), max_iter=2, progress=False)
+    model.save(tmp_path / "m.npz")
+    assert bm.load(tmp_path / "m.npz").codecs[0].fps == model.fps == 5.0
+    with pytest.raises(bm.BayesmotionError, match="fps must be positive"):
+        codec.decode(enc.Y, enc.anchor, fps=0.0)

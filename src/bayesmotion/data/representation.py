@@ -144,6 +144,8 @@ class PoseCodec:
             the circular mean of the training data. Unwrapping alone keeps one clip continuous
             but leaves two clips of the same pose a turn apart (Bandai's Hips near +-180 deg).
             None (files written before it existed): no shift.
+        fps: frame rate of the training motions, the default of :meth:`decode` (None in files
+            written before it was stored).
     """
 
     skeleton: Skeleton
@@ -156,6 +158,7 @@ class PoseCodec:
     mover: int = 0
     heading_axis: int = -1
     branch: np.ndarray | None = None
+    fps: float | None = None
 
     @property
     def dim(self) -> int:
@@ -225,7 +228,8 @@ class PoseCodec:
             for k in np.unique(kind):
                 sel = kind == k
                 scale[sel] = np.sqrt(np.mean(std[sel] ** 2)) or 1.0
-        return cls(sk, root_mode, keep, raw[0].copy(), mean, scale, scaling, mover, axis, branch)
+        return cls(sk, root_mode, keep, raw[0].copy(), mean, scale, scaling, mover, axis, branch,
+                   float(motions[0].fps))
 
     def _kinds(self) -> np.ndarray:
         """(C[+1],) 0 for rotation channels, 1 for root horizontal, 2 for other positions,
@@ -318,7 +322,7 @@ class PoseCodec:
         v, anchor = self._transform(motion, partner)
         return Encoded((v[:, self.keep] - self.mean) / self.scale, anchor)
 
-    def decode(self, Y, anchor=None, skeleton: Skeleton | None = None, fps: float = 30.0,
+    def decode(self, Y, anchor=None, skeleton: Skeleton | None = None, fps: float | None = None,
                name: str = "") -> Motion:
         """(T, D) -> Motion.
 
@@ -327,8 +331,17 @@ class PoseCodec:
             anchor: from :meth:`encode`; ``None`` places a "velocity" or "heading" root at the
                 origin (heading 0) and a "partner" root around a fixed midpoint of zero.
             skeleton: skeleton whose offsets to use (defaults to the codec's).
-            fps: frame rate of the result (also converts velocities back to positions).
+            fps: frame rate of the result (also converts velocities back to positions);
+                default: the rate the codec was fitted at, so ``decode(*encode(m))`` is ``m``
+                for a motion at that rate.
         """
+        if fps is None:
+            if self.fps is None:
+                raise BayesmotionError("this codec does not know its frame rate (saved before "
+                                       "it was stored): pass fps= to decode")
+            fps = self.fps
+        if not np.isfinite(fps) or fps <= 0:
+            raise BayesmotionError(f"fps must be positive, got {fps}")
         Y = np.asarray(Y, dtype=np.float64)
         if Y.ndim != 2 or Y.shape[1] != self.dim:
             raise BayesmotionError(f"decode expects Y of shape (T, {self.dim}), got {Y.shape}")
@@ -358,7 +371,8 @@ class PoseCodec:
 
     def to_meta(self) -> dict:
         return {"root_mode": self.root_mode, "scaling": self.scaling, "mover": self.mover,
-                "heading_axis": self.heading_axis, "skeleton": self.skeleton.to_dict()}
+                "heading_axis": self.heading_axis, "skeleton": self.skeleton.to_dict(),
+                "fps": self.fps}
 
     @classmethod
     def from_saved(cls, meta: dict, arrays, prefix: str) -> PoseCodec:
@@ -368,7 +382,7 @@ class PoseCodec:
                    np.asarray(arrays[f"{prefix}scale"]), meta.get("scaling", "type"),
                    int(meta.get("mover", 0)), int(meta.get("heading_axis", -1)),
                    np.asarray(arrays[f"{prefix}branch"]) if f"{prefix}branch" in arrays
-                   else None)
+                   else None, None if meta.get("fps") is None else float(meta["fps"]))
 
 
 def _rotate_horizontal(R: np.ndarray, hv: np.ndarray) -> np.ndarray:
