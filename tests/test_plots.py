@@ -193,3 +193,20 @@ def test_real_bandai_pose_upright(bandai_files):
     names = [n for n in m.skeleton.names if n != "joint_Root"]
     head, toe = d[names.index("Head"), 2], d[names.index("Toes_L"), 2]
     assert head - toe > 100  # standing, Y up, in cm
+
+
+def test_spread_samples_hide_what_their_actor_hides_and_take_its_colour():
+    """Raw sample arrays used to draw Bandai's static joint_Root (a bone from the world origin
+    to the hips), and the CLI/demo listed samples actor by actor, so half took the other
+    actor's colour."""
+    from bayesmotion.plots import scene, spread_colors
+
+    a, b = small_motion("a", root="joint_Root"), small_motion("b", root="joint_Root", shift=5)
+    P = np.stack([a.positions(), b.positions()])  # (A, T, J, 3)
+    S = np.stack([P + 0.01 * k for k in range(3)])  # (S, A, T, J, 3)
+    main, extra = scene([a, b], spread=S.reshape(-1, *S.shape[2:]))
+    assert main[0].hidden and all(t.hidden == main[0].hidden for t in extra)
+    cols = spread_colors(len(main), len(extra), ["blue", "red"])
+    assert cols == ["blue", "red"] * 3
+    for k, t in enumerate(extra):  # track k is sample k // 2 of actor k % 2
+        np.testing.assert_array_equal(t.source, S[k // 2, k % 2])

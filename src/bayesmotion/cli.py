@@ -145,8 +145,9 @@ def _cmd_generate(a):
     if a.gif:
         from .animate import animate
 
-        spread = None if r.samples is None else [r.samples["positions"][:, k]
-                                                  for k in range(m.n_actors)]
+        # (S, A, T, J, 3) -> sample by sample, actors inside: the order spread_colors expects
+        spread = None if r.samples is None else r.samples["positions"].reshape(
+            -1, *r.samples["positions"].shape[2:])
         animate(r.to_motion(), out / f"{tag}.gif", spread=spread)
     flag = " (extrapolated beyond the simplex)" if r.extrapolated else ""
     print(f"wrote {len(paths)} BVH files to {out}{flag}")

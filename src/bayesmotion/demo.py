@@ -122,8 +122,8 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
         r.write_bvh(out / "bvh", prefix=e)
         gif = out / f"{e}.gif"
         samples = r.samples["positions"][: 3 * cfg["n_samples"]]  # (S, A, T, J, 3)
-        animate(r.to_motion(), gif, stride=cfg["gif_stride"],
-                spread=[samples[:, a] for a in range(samples.shape[1])])
+        animate(r.to_motion(), gif, stride=cfg["gif_stride"],  # sample by sample, actors inside
+                spread=samples.reshape(-1, *samples.shape[2:]))
         gifs.append(gif)
         parts = r.variance_parts["positions"]
         gen[e] = {"position_var_within": float(np.mean(parts["within"])),

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -134,7 +134,11 @@ def scene(obj, spread=None, parents=None, end_sites: bool = False,
           hide: Sequence = HIDDEN_JOINTS) -> tuple[list[Track], list[Track]]:
     """The actors' tracks and the faint ``spread`` tracks.
 
-    Raw spread arrays take the bones of the actor with as many joints (or ``parents``).
+    Raw spread arrays take the bones of the actor with as many joints (or ``parents``), and
+    hide the joints that actor's track hides (e.g. Bandai's static ``joint_Root``, which would
+    otherwise be drawn as a bone from the world origin to the hips). List samples sample by
+    sample, the actors inside each (``samples.reshape(-1, T, J, 3)`` of an (S, A, T, J, 3)
+    array), so that :func:`spread_colors` gives each its actor's colour.
     """
     main = tracks(obj, parents, end_sites, hide)
     if spread is None:
@@ -142,12 +146,16 @@ def scene(obj, spread=None, parents=None, end_sites: bool = False,
     known = {len(t.parents): t.parents for t in main}
     if parents is not None and not isinstance(parents, dict):
         known.setdefault(len(parents), tuple(parents))
-    return main, tracks(spread, known, end_sites, hide)
+    hidden_of = {t.parents: t.hidden for t in main}
+    extra = [replace(t, hidden=t.hidden | hidden_of.get(t.parents, frozenset()))
+             for t in tracks(spread, known, end_sites, hide)]
+    return main, extra
 
 
 def spread_colors(n_main: int, n_extra: int, colors: Sequence) -> list:
-    """Colours of faint tracks: when their count is a multiple of the actors' (samples of whole
-    trials, actor by actor) track i takes actor ``i % n_main``'s colour, else the first one's."""
+    """Colours of faint tracks: when their count is a multiple of the actors' (whole samples,
+    listed sample by sample with the actors inside) track i takes actor ``i % n_main``'s
+    colour, else the first one's."""
     if n_main > 1 and n_extra % n_main == 0:
         return [colors[(i % n_main) % len(colors)] for i in range(n_extra)]
     return [colors[0]] * n_extra
