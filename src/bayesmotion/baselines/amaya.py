@@ -32,6 +32,7 @@ from ..data.emotion import (
     EmotionStyle,
     apply_emotion,
     channel_categories,
+    motion_mover,
     unwrapped,
 )
 from ..data.motion import Motion
@@ -97,7 +98,7 @@ def fit_amaya(neutral: Motion, emotional: Motion, categories: Mapping[str, str] 
     if not neutral.skeleton.same_layout(emotional.skeleton):
         raise SkeletonMismatchError("fit_amaya: neutral and emotional motions must share one "
                                     "skeleton layout (joints, tree, channels)")
-    cats = channel_categories(neutral.skeleton, categories)
+    cats = channel_categories(neutral.skeleton, categories, motion_mover(neutral, emotional))
     on = cats != ""
     vn, ve = unwrapped(neutral)[:, on], unwrapped(emotional)[:, on]
     sel = {c: cats[on] == c for c in CATEGORIES}

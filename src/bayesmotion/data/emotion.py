@@ -18,8 +18,10 @@ offsets** and root **bounce** used for the built-in emotional handshakes:
 Rotation channels are unwrapped in time (period 360 deg) before any interpolation or scaling and
 are returned unwrapped (BVH accepts any angle), so a curve crossing +-180 never jumps by 360.
 Body-part categories come from a joint-name -> category mapping (``"torso"``: spine, neck and
-head; ``"arms"``: clavicles to fingers; ``"legs"``: hips to toes); the root joint belongs to no
-category (its rotation is the global heading) and is never scaled, offset or lagged.
+head; ``"arms"``: clavicles to fingers; ``"legs"``: hips to toes); the joint that carries the
+global position and heading (the root in CMU files, ``Hips`` below Bandai's static
+``joint_Root``: :func:`motion_mover`) and its ancestors belong to no category and are never
+scaled or lagged.
 """
 
 from __future__ import annotations
@@ -177,24 +179,38 @@ def unwrapped(motion: Motion) -> np.ndarray:
     return v
 
 
-def channel_categories(skeleton: Skeleton, categories: Mapping[str, str] | None = None
-                       ) -> np.ndarray:
+def channel_categories(skeleton: Skeleton, categories: Mapping[str, str] | None = None,
+                       mover: int = 0) -> np.ndarray:
     """(C,) category of each rotation channel ("" for position channels and uncategorised joints).
 
     Args:
         skeleton: the joint tree.
         categories: joint name -> category; defaults to :func:`body_parts`.
+        mover: the joint that carries the global position and heading (see
+            :func:`motion_mover`); it and its ancestors get no category. The skeleton's root
+            for CMU files; ``Hips`` below Bandai's static ``joint_Root``.
     """
     categories = body_parts(skeleton) if categories is None else categories
     bad = sorted(set(categories.values()) - set(CATEGORIES))
     if bad:
         raise BayesmotionError(f"unknown body-part categories {bad}; use {list(CATEGORIES)}")
-    root = skeleton.names[0]
+    glob, j = set(), int(mover)
+    while j >= 0:
+        glob.add(j)
+        j = skeleton.parents[j]
     out = []
-    for name, chans in zip(skeleton.names, skeleton.channels, strict=True):
-        cat = "" if name == root else categories.get(name, "")
+    for j, (name, chans) in enumerate(zip(skeleton.names, skeleton.channels, strict=True)):
+        cat = "" if j in glob else categories.get(name, "")
         out += [cat if c in ROTATION_CHANNELS else "" for c in chans]
     return np.array(out, dtype=object)
+
+
+def motion_mover(*motions: Motion) -> int:
+    """The joint carrying the motions' global position and heading: the one whose horizontal
+    position channels travel most (:func:`bayesmotion.data.representation.find_mover`)."""
+    from .representation import find_mover
+
+    return find_mover(list(motions))
 
 
 def mean_posture(motion: Motion) -> np.ndarray:
@@ -227,7 +243,7 @@ def resample_at(motion: Motion, times, *, fps: float | None = None,
     if times.ndim != 1 or times.size == 0 or not np.all(np.isfinite(times)):
         raise BayesmotionError(f"times must be a non-empty finite 1-D array, got shape "
                                f"{times.shape}")
-    cats = channel_categories(motion.skeleton, categories)
+    cats = channel_categories(motion.skeleton, categories, motion_mover(motion))
     lags = np.array([dict(timing or {}).get(c, 0.0) if c else 0.0 for c in cats])
     last = motion.n_frames - 1
     pos = np.clip((times[:, None] - lags[None]) * motion.fps, 0, last)  # (T', C) in frames
@@ -298,7 +314,7 @@ def scale_amplitude(motion: Motion, factors: Mapping[str, float] | float, *, ref
     Returns:
         the scaled motion (position channels and the root unchanged).
     """
-    cats = channel_categories(motion.skeleton, categories)
+    cats = channel_categories(motion.skeleton, categories, motion_mover(motion))
     if not isinstance(factors, Mapping):
         factors = dict.fromkeys(CATEGORIES, float(factors))
     f = np.array([factors.get(c, 1.0) if c else 1.0 for c in cats], dtype=np.float64)
