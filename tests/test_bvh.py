@@ -128,6 +128,10 @@ def test_synthetic_round_trip_and_writer_layout():
     ("1", 1.0),
     ("0.008334027835652971", 119.99),  # written with all digits: not an integer rate
     ("0.3", 1 / 0.3),  # 3.33 fps, too far from 3 to snap
+    ("0.0333", 30.0),  # short texts: 1/30 is the only 1/n within one unit of the last digit
+    ("0.0167", 60.0),
+    ("0.01666", 60.0),  # truncated
+    ("0.03", 1 / 0.03),  # fits 1/30 ... 1/33: ambiguous, not snapped
 ])
 def test_fps_from_frame_time(frame_time, fps):
     text = SYNTH.replace("Frame Time: 3.3333333e-2", f"Frame Time: {frame_time}")

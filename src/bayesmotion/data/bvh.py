@@ -8,8 +8,9 @@ CRLF/LF/CR line ends, tabs, a UTF-8 byte-order mark and scientific notation. Any
 read -> write -> read is bit-exact for channel values, offsets and fps; ``precision=k`` writes k
 decimals instead.
 
-Frame rate: ``fps = 1 / Frame Time``, snapped to the nearest integer when the written frame time
-agrees with ``1 / round(fps)`` to the digits it was written with (``.0083333`` -> 120.0).
+Frame rate: ``fps = 1 / Frame Time``, snapped to an integer n when 1/n is the only reciprocal of
+an integer within one unit of the frame time's last written digit (``.0083333`` -> 120.0,
+``0.0333`` -> 30.0, ``0.01666`` -> 60.0; ``0.03``, which fits 30 to 33, stays 33.33...).
 """
 
 from __future__ import annotations
@@ -261,12 +262,15 @@ def _fps(ft_txt: str, error) -> float:
     fps = float(_DECIMAL.divide(1, ft_dec))
     if not math.isfinite(fps):
         raise error(f"frame time {ft_txt!r} is too small (fps overflows)")
-    n = round(fps)
-    if n >= 1 and abs(fps - n) < 1e-4 * fps:
-        # snap when the text agrees with 1/n to within one unit of its last written digit
-        last_digit = Decimal(1).scaleb(ft_dec.as_tuple().exponent)
-        if abs(_DECIMAL.subtract(ft_dec, _DECIMAL.divide(1, n))) <= last_digit:
-            return float(n)
+    # snap to n when 1/n is the only reciprocal of an integer within one unit of the text's last
+    # written digit ("0.0333" -> 30, "0.0167" or "0.01666" -> 60; "0.03" fits 30 to 33: kept)
+    unit = Decimal(1).scaleb(ft_dec.as_tuple().exponent)
+    lo_ft, hi_ft = _DECIMAL.subtract(ft_dec, unit), _DECIMAL.add(ft_dec, unit)
+    if lo_ft > 0:
+        n_lo = math.ceil(_DECIMAL.divide(1, hi_ft))
+        n_hi = math.floor(_DECIMAL.divide(1, lo_ft))
+        if n_lo == n_hi and n_lo >= 1:
+            return float(n_lo)
     return fps
 
 
