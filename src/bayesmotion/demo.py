@@ -6,6 +6,7 @@ interpolation series -> emotion inference on held-out trials -> report.html + su
 
 from __future__ import annotations
 
+import html
 import json
 import time
 import warnings
@@ -204,7 +205,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, default=float))
     sections = [
         ("MAP fit", [out / "fit_trace.png", f"<p>{d['iterations']} iterations, "
-                     f"{d['seconds']:.1f} s, {d['message']}</p>"]),
+                     f"{d['seconds']:.1f} s, {html.escape(str(d['message']))}</p>"]),
         ("Posterior (emcee)", [out / "trace.png", table(
             [[k, f"{v:.3g}" if isinstance(v, float) else v]
              for k, v in summary["posterior"].items()], ["quantity", "value"])]),

@@ -15,8 +15,17 @@ _CSS = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222
         "text-align:right}pre{background:#f6f6f6;padding:8px;overflow-x:auto}")
 
 
+_MIME = {".gif": "image/gif", ".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg",
+         ".svg": "image/svg+xml", ".webp": "image/webp"}
+
+
 def _img(path: Path, alt: str) -> str:
-    mime = "image/gif" if path.suffix == ".gif" else "image/png"
+    mime = _MIME.get(path.suffix.lower())
+    if mime is None:
+        from .errors import BayesmotionError
+
+        raise BayesmotionError(f"cannot embed {path.name!r} in the report: the suffix must be "
+                               f"one of {sorted(_MIME)}")
     data = base64.b64encode(path.read_bytes()).decode()
     return f'<img alt="{html.escape(alt)}" src="data:{mime};base64,{data}">'
 
@@ -29,7 +38,8 @@ def table(rows: list[list], header: list[str]) -> str:
 
 
 def write_report(path: Path, title: str, sections: list[tuple[str, list]], summary: dict):
-    """sections: (heading, items); an item is a Path (image/GIF) or an HTML string."""
+    """sections: (heading, items); an item is a Path (an image, embedded) or an HTML string,
+    inserted as given: escape any text in it (:func:`html.escape`, :func:`table` does)."""
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
              f"</title><style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>"]
     for heading, items in sections:
