@@ -217,3 +217,16 @@ def test_unknown_style_factors_and_untrained_levels_are_refused(tiny_model):
         wider.generate(emotion=[0.5, 0.0, 0.5], n_frames=10)
     r = wider.generate(emotion=[0.5, 0.5, 0.0], n_frames=10)  # trained levels only: fine
     assert np.all(np.isfinite(r.positions))
+
+
+def test_transition_weights_at_the_window_edges(tiny_model):
+    from bayesmotion.generate import Transition, resolve_style
+
+    w = resolve_style(tiny_model, "emotion", Transition("happy", "sad", 3, 4), 10)[:, 1]
+    np.testing.assert_allclose(w[:4], 0.0)  # up to and including frame start
+    np.testing.assert_allclose(w[7:], 1.0)  # from frame start + length on
+    assert np.all(np.diff(w[3:8]) > 0)
+    w0 = resolve_style(tiny_model, "emotion", Transition("happy", "sad", 3, 0), 6)[:, 1]
+    np.testing.assert_array_equal(w0, [0, 0, 0, 1, 1, 1])  # length 0 switches at start
+    with pytest.raises(BayesmotionError, match="length must be >= 0"):
+        resolve_style(tiny_model, "emotion", Transition("happy", "sad", 3, -1), 6)

@@ -43,10 +43,11 @@ from .predict import (
 
 
 class Transition(NamedTuple):
-    """A style that changes from ``source`` to ``target`` over frames [start, start + length).
+    """A style that changes from ``source`` to ``target``: the target's weight rises from 0 at
+    frame ``start`` to 1 at frame ``start + length`` along a smoothstep, as in the emotion
+    transitions of Bhattacharya et al. (2021); ``length = 0`` switches at frame ``start``.
 
-    ``source`` / ``target`` are level names or coordinate vectors. The blend weight follows a
-    smoothstep, as in the emotion transitions of Bhattacharya et al. (2021).
+    ``source`` / ``target`` are level names or coordinate vectors.
     """
 
     source: object
@@ -75,7 +76,11 @@ def resolve_style(model, factor: str, value, n_frames: int) -> np.ndarray:
     K = len(model.levels[factor])
     if isinstance(value, Transition):
         a, b = _coords(model, factor, value.source), _coords(model, factor, value.target)
-        t = np.clip((np.arange(n_frames) - value.start) / max(value.length, 1), 0.0, 1.0)
+        if value.length < 0:
+            raise BayesmotionError(f"a Transition's length must be >= 0, got {value.length}")
+        f = np.arange(n_frames) - value.start
+        t = (np.clip(f / value.length, 0.0, 1.0) if value.length > 0
+             else (f >= 0).astype(np.float64))
         w = t * t * (3 - 2 * t)
         return (1 - w)[:, None] * a + w[:, None] * b
     arr = np.asarray(value) if not isinstance(value, str) else None
