@@ -197,8 +197,7 @@ class EmotionPosterior:
             raise BayesmotionError("no density kept for this posterior (pooled over model draws, "
                                    "or the couple inferred too): use region_contains")
         W = np.atleast_2d(np.asarray(coords, dtype=np.float64))
-        if W.ndim != 2 or W.shape[1] != len(self.levels) or np.any(W < 0) or np.any(
-                np.abs(W.sum(1) - 1) > 1e-9):
+        if W.ndim != 2 or W.shape[1] != len(self.levels) or not _on_simplex(W):
             raise BayesmotionError(f"coords must be points of the {len(self.levels)}-level "
                                    f"simplex (non-negative, summing to 1)")
         return W
@@ -247,7 +246,7 @@ class EmotionPosterior:
         c = np.asarray(coords, dtype=np.float64)
         if c.shape != (len(self.levels),):
             raise BayesmotionError(f"coords must have {len(self.levels)} entries, got {c.shape}")
-        if on_simplex and (np.any(c < -1e-9) or abs(c.sum() - 1) > 1e-6):
+        if on_simplex and not _on_simplex(c):
             raise BayesmotionError(f"coords must lie on the simplex (>= 0, summing to 1), got "
                                    f"{c.tolist()}")
         return c[:-1]
@@ -328,6 +327,12 @@ class EmotionPosterior:
                 f"{tempered}); mean {coords}")
 
     __repr__ = __str__
+
+
+def _on_simplex(W) -> bool:
+    """Every row non-negative and summing to 1 (to 1e-9)."""
+    W = np.asarray(W)
+    return bool(np.all(W >= 0) and np.all(np.abs(W.sum(-1) - 1) <= 1e-9))
 
 
 def _check_level(q) -> None:
