@@ -308,8 +308,10 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         a Posterior. A ``ChainTooShortWarning`` is issued when the chain is shorter than 50
         autocorrelation times.
     """
-    if burn is not None and not 0 <= burn < n_steps:
-        raise BayesmotionError(f"burn must be in [0, n_steps = {n_steps}), got {burn}")
+    if burn is not None and (burn < 0 or (method == "emcee" and burn >= n_steps)):
+        # emcee discards burn of its n_steps; NUTS warms up for burn steps before n_steps draws
+        raise BayesmotionError(f"burn must be in [0, n_steps = {n_steps}) for emcee and >= 0 "
+                               f"for NUTS, got {burn}")
     target = Target(fitted)
     centre, cdiag = target.conditional_map(progress=False)
     if method == "emcee":
