@@ -230,3 +230,55 @@ def test_transition_weights_at_the_window_edges(tiny_model):
     np.testing.assert_array_equal(w0, [0, 0, 0, 1, 1, 1])  # length 0 switches at start
     with pytest.raises(BayesmotionError, match="length must be >= 0"):
         resolve_style(tiny_model, "emotion", Transition("happy", "sad", 3, -1), 6)
+
+
+def _predictions(P, rng, styles):
+    """Dynamics and interaction predictive means and variances at random inputs."""
+    from bayesmotion import predict
+
+    o, _, q = P.dyn_lags.shape
+    lags = rng.normal(size=(o, 7, q))
+    I = rng.normal(size=(7, P.I.shape[1]))
+    S = [np.broadcast_to(np.asarray(s, float), (7, len(s))) for s in styles]
+    return (*predict.predict_dynamics(P, lags, S), *predict.predict_interaction(P, I, S))
+
+
+@pytest.mark.parametrize("which", ["tiny", "unequal_cells"])
+def test_blocked_conditioning_predicts_what_the_dense_one_does(tiny_model, which):
+    """With one-hot training styles the style layers are conditioned cell by cell; every
+    prediction (one-hot, mixed and extrapolated styles) must equal the dense conditioning's."""
+    from bayesmotion import HGPDM, predict
+
+    from .conftest import make_tiny_dataset
+
+    m = tiny_model
+    if which == "unequal_cells":  # 2 happy and 3 sad trials: cells of unequal size (padding)
+        ds = make_tiny_dataset()
+        keep = [t for t in ds.trials if t.labels["emotion"] == "sad"]
+        keep += [t for t in ds.trials if t.labels["emotion"] == "happy"][:2]
+        ds = bm.MotionDataset(keep, ds.levels)
+        m = HGPDM(latent_dim=3, interaction_dim=3).fit(ds, max_iter=5, progress=False)
+    blocked, dense = predict.condition(m), predict.condition(m, blocked=False)
+    assert blocked.dyn.rows is not None and blocked.inter.rows is not None
+    assert dense.dyn.rows is None and dense.inter.rows is None
+    if which == "unequal_cells":
+        assert not np.asarray(blocked.inter.mask).all()  # the smaller cell is padded
+    for seed, emotion in enumerate(([1.0, 0.0], [0.0, 1.0], [0.3, 0.7], [1.4, -0.4])):
+        styles = [[1.0], emotion]  # couple (one level), emotion
+        got = _predictions(blocked, np.random.default_rng(seed), styles)
+        want = _predictions(dense, np.random.default_rng(seed), styles)
+        for g, w in zip(got, want, strict=True):
+            np.testing.assert_allclose(np.asarray(g), np.asarray(w), rtol=1e-8,
+                                       atol=1e-10 * float(np.max(np.abs(w))))
+
+
+def test_learned_style_vectors_keep_the_dense_conditioning():
+    """Learned (non one-hot) style vectors couple the cells: no block structure to use."""
+    from bayesmotion import HGPDM, predict
+
+    from .conftest import make_tiny_dataset
+
+    m = HGPDM(latent_dim=2, interaction_dim=2).fit(make_tiny_dataset(), max_iter=3,
+                                                   optimize_style=("emotion",), progress=False)
+    P = predict.condition(m)
+    assert P.dyn.rows is None and P.inter.rows is None

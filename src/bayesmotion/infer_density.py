@@ -30,6 +30,7 @@ from .predict import (
     predict_bottom,
     predict_dynamics,
     predict_interaction,
+    whiten,
 )
 
 LOG_2PI = float(np.log(2 * np.pi))
@@ -143,8 +144,8 @@ def _expand(kernel_at, fit: LayerFit, factors, free: dict, fixed: dict, n: int, 
     kx = jnp.stack(kx)  # (P, M, n)
     P, M, _ = kx.shape
     G = jnp.einsum("pmn,md->pnd", kx, fit.A)
-    V = fit.Linv @ jnp.moveaxis(kx, 0, 1).reshape(M, P * n)
-    V = V.reshape(M, P, n)
+    V = whiten(fit, jnp.moveaxis(kx, 0, 1).reshape(M, P * n))
+    V = V.reshape(-1, P, n)
     return G, jnp.einsum("mpn,mqn->npq", V, V)
 
 

@@ -25,14 +25,34 @@ from .params import STYLE_PREFIX, style_to_simplex
 
 
 class LayerFit(NamedTuple):
-    """One conditioned GP layer: Linv = L^-1 (M, M) of the training Gram matrix K = L L^T,
-    and the weights A = K^-1 outputs (M, D).
+    """One conditioned GP layer: Linv = L^-1 of the training Gram matrix K = L L^T, and the
+    weights A = K^-1 outputs (M, D).
 
     The inverse factor, not L, so that predictive variances |L^-1 k|^2 are matrix products
-    (every core, and batched without LAPACK calls) instead of triangular solves."""
+    (every core, and batched without LAPACK calls) instead of triangular solves.
+
+    Dense (``rows`` None): Linv is (M, M). Blocked: when the layer's training styles are
+    one-hot, K is block-diagonal over style cells (the style factor is exactly 0 across cells,
+    Wang et al. 2007), and so is L^-1; then Linv holds one (B, B) inverse factor per cell,
+    (n_cells, B, B), ``rows`` (n_cells, B) the cell's training rows and ``mask`` (n_cells, B)
+    1.0 for real rows, 0.0 for padding. A is (M, D) either way. The variance products then
+    cost sum_cells B^2 instead of M^2 per input (8x fewer on the built-in handshakes).
+    Use :func:`whiten` rather than Linv directly.
+    """
 
     Linv: jnp.ndarray
     A: jnp.ndarray
+    rows: jnp.ndarray | None = None
+    mask: jnp.ndarray | None = None
+
+
+def whiten(fit: LayerFit, kx: jnp.ndarray) -> jnp.ndarray:
+    """A matrix V with V^T V = kx^T K^-1 kx for cross-covariances kx (M, n): L^-1 kx (M, n)
+    for a dense fit; for a blocked fit the cells' L_b^-1 kx_b stacked, (n_cells * B, n)."""
+    if fit.rows is None:
+        return _lower_times(fit.Linv, kx)
+    kb = kx[fit.rows] * fit.mask[..., None]  # (n_cells, B, n); padding rows zero
+    return jnp.matmul(fit.Linv, kb).reshape(-1, kx.shape[-1])
 
 
 class Predictor(NamedTuple):
@@ -72,29 +92,85 @@ def style_vectors(P: Predictor, factors, coords) -> list[jnp.ndarray]:
     return [jnp.asarray(c) @ P.level_vectors[f] for f, c in zip(factors, coords, strict=True)]
 
 
+def _lower_times(L, k, depth: int = 2):
+    """L @ k for a lower-triangular L, skipping its zero upper blocks: split in halves twice,
+    5/8 of the dense product's multiply-adds (816 x 816 times 816 x 500 on the 2-core target:
+    6.1 ms against 7.7 ms dense; deeper splits are slower)."""
+    n = L.shape[0]
+    if depth == 0 or n < 128:
+        return L @ k
+    h = n // 2
+    top = _lower_times(L[:h, :h], k[:h], depth - 1)
+    bottom = L[h:, :h] @ k[:h] + _lower_times(L[h:, h:], k[h:], depth - 1)
+    return jnp.concatenate([top, bottom])
+
+
 def _fit_layer(K, outputs, jitter):
     L, _ = layers.safe_cholesky(K, jitter)
     return LayerFit(triangular_inverse(L), cho_solve((L, True), outputs))
 
 
-def condition(model, params: dict | None = None, jitter: float | None = None) -> Predictor:
+def _fit_blocked(K_of_rows, noise_var, outputs, blocks: layers.Blocks, jitter):
+    """:func:`_fit_layer` of a block-diagonal K = blockdiag(K_b) + noise_var I, one cell at a
+    time. The jitter is the dense path's, jitter * mean(diag K) over all rows, so the result
+    equals the dense fit's (tested). Padding rows get unit variance, no coupling and zero
+    output; :func:`whiten` zeroes their cross-covariances."""
+    idx, mask = jnp.asarray(blocks.idx), jnp.asarray(blocks.mask)
+
+    def build(ix, m):
+        mm = m[:, None] & m[None, :]
+        return jnp.where(mm, K_of_rows(ix), 0.0) + jnp.diag(jnp.where(m, noise_var, 1.0))
+
+    Ks = jax.vmap(build)(idx, mask)
+    diag = jnp.diagonal(Ks, axis1=1, axis2=2)
+    scale = jnp.sum(jnp.where(mask, diag, 0.0)) / jnp.sum(mask)
+    Ks = Ks + jax.vmap(jnp.diag)(jnp.where(mask, jitter * scale, 0.0))
+    L = jax.vmap(lambda K: layers.safe_cholesky(K, 0.0)[0])(Ks)
+    Yb = jnp.where(mask[..., None], outputs[idx], 0.0)
+    Ab = jax.vmap(lambda L, y: cho_solve((L, True), y))(L, Yb)
+    real = blocks.mask  # static (NumPy): the real rows' places
+    A = jnp.zeros_like(outputs).at[blocks.idx[real]].set(Ab[real])
+    Linv = jax.vmap(triangular_inverse)(L)
+    return LayerFit(Linv, A, idx, mask.astype(outputs.dtype))
+
+
+def _style_blocks(spec_factors, params, data, row_trial) -> layers.Blocks | None:
+    """The style cells of a layer's training rows when its kernel is block-diagonal (every
+    factor of the layer one-hot, none with learned style vectors, more than one cell); None
+    otherwise (the dense path)."""
+    if not spec_factors or any(STYLE_PREFIX + f in params for f in spec_factors):
+        return None
+    hots = [np.asarray(data.onehot[f])[row_trial] for f in spec_factors]
+    if not all(np.all((h == 0) | (h == 1)) and np.all(h.sum(1) == 1) for h in hots):
+        return None
+    cells = layers.cell_ids(hots)
+    return layers.Blocks(cells) if np.unique(cells).size > 1 else None
+
+
+def condition(model, params: dict | None = None, jitter: float | None = None,
+              blocked: bool = True) -> Predictor:
     """Condition every layer on the training data at ``params`` (default: the MAP).
 
     The work is one jitted function per model (cached on it), so conditioning on many
     posterior draws compiles once; run eagerly, op by op, it spent ~5 s compiling.
+
+    ``blocked``: condition the style layers cell by cell where their kernel is block-diagonal
+    (one-hot training styles; see :class:`LayerFit`); the same predictions for less work.
+    False forces the dense factors (for checks).
     """
     params = {k: jnp.asarray(v) for k, v in (model.params if params is None else params).items()}
     jitter = model.diagnostics.get("jitter", 1e-8) if jitter is None else jitter
     cache = getattr(model, "_cache", None)
-    fn = None if cache is None else cache.get("condition_fn")
+    name = "condition_fn" if blocked else "condition_fn_dense"
+    fn = None if cache is None else cache.get(name)
     if fn is None:
-        fn = jax.jit(lambda p, j: _condition(model.spec, model.data, p, j))
+        fn = jax.jit(lambda p, j: _condition(model.spec, model.data, p, j, blocked))
         if cache is not None:
-            cache["condition_fn"] = fn
+            cache[name] = fn
     return fn(params, jnp.asarray(jitter, dtype=jnp.float64))
 
 
-def _condition(spec, data, params, jitter) -> Predictor:
+def _condition(spec, data, params, jitter, blocked=True) -> Predictor:
     h = constrained(params)
     index = layers.DynamicsIndex(data.lengths, spec.order)
     S = trial_styles(params, data)
@@ -104,13 +180,24 @@ def _condition(spec, data, params, jitter) -> Predictor:
     # dynamics
     lags, out = layers.dynamics_io(I, index)
     dyn_style = tuple(S[f][tof][index.out] for f in spec.dynamics_factors)
-    Kd = kernels.dynamics_kernel(lags, lags, dyn_style, dyn_style, h["alpha"])
-    dyn = _fit_layer(Kd + jnp.eye(out.shape[0]) / h["alpha"][1 + 2 * o], out, jitter)
+    cells = _style_blocks(spec.dynamics_factors, params, data, tof[index.out]) if blocked else None
+    if cells is None:
+        Kd = kernels.dynamics_kernel(lags, lags, dyn_style, dyn_style, h["alpha"])
+        dyn = _fit_layer(Kd + jnp.eye(out.shape[0]) / h["alpha"][1 + 2 * o], out, jitter)
+    else:  # within a cell the style factor is exactly 1
+        dyn = _fit_blocked(lambda ix: kernels.dynamics_kernel(
+            [l[ix] for l in lags], [l[ix] for l in lags], [], [], h["alpha"]),
+            1.0 / h["alpha"][1 + 2 * o], out, cells, jitter)
     # interaction
     int_style = tuple(S[f][tof] for f in spec.interaction_factors)
     Z = jnp.concatenate(list(X), axis=1)
-    Ki = kernels.interaction_kernel(I, I, int_style, int_style, h["beta"])
-    inter = _fit_layer(Ki + jnp.eye(I.shape[0]) / h["beta"][2], Z, jitter)
+    cells = _style_blocks(spec.interaction_factors, params, data, tof) if blocked else None
+    if cells is None:
+        Ki = kernels.interaction_kernel(I, I, int_style, int_style, h["beta"])
+        inter = _fit_layer(Ki + jnp.eye(I.shape[0]) / h["beta"][2], Z, jitter)
+    else:
+        inter = _fit_blocked(lambda ix: kernels.rbf(I[ix], I[ix], h["beta"][0], h["beta"][1]),
+                             1.0 / h["beta"][2], Z, cells, jitter)
     # bottom, per actor
     Ls, As = [], []
     for a in range(X.shape[0]):
@@ -127,7 +214,7 @@ def _condition(spec, data, params, jitter) -> Predictor:
 def _mean_var(kx, kxx, fit: LayerFit):
     """kx: (M, B) cross-covariances, kxx: (B,) prior variances -> mean (B, D), var (B,)."""
     mean = kx.T @ fit.A
-    v = fit.Linv @ kx
+    v = whiten(fit, kx)
     return mean, jnp.maximum(kxx - jnp.sum(v * v, 0), 0.0)
 
 

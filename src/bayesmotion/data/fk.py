@@ -292,35 +292,42 @@ def _fk_with_variance(values, var, offsets, *, layout):
                    jnp.eye(3, dtype=values.dtype))
     Wc = jnp.zeros((C, T, 3), values.dtype)
     for order, (js, cols) in groups.items():  # world axis of each Euler rotation
-        for k, axis in enumerate(order):
-            frame = _mm3(Rp[js], parts[order][k])  # (n, T, 3, 3)
-            Wc = Wc.at[cols[:, k]].set(frame[..., :, "XYZ".index(axis)])
+        for k, axis in enumerate(order):  # the parent's rotation times the partial product's
+            col = parts[order][k][..., :, "XYZ".index(axis)]  # column: one matrix-vector
+            Wc = Wc.at[cols[:, k]].set(_mv3(Rp[js], col))
     if pos.size:
         Wc = Wc.at[pos[:, 2]].set(Rp[pos[:, 0], :, :, pos[:, 1]])
-    # Expand |w x (p - q)|_k^2 = (M_k . p - s_k)^2 with M = [w]_x, s = w x q, so that the sum
-    # over channels is a sum of per-channel features G_kab = M_ka M_kb, h_kb = s_k M_kb,
-    # e_k = s_k^2 (position channels: G = h = 0, e = W^2), accumulated down the tree, instead of
-    # a (T, C, J, 3) Jacobian. Points are taken relative to the root to keep the terms small.
-    # Everything is channel- or joint-major (leading axis), frames second.
+    # For a rotation channel, (w x (p - q))_k = (w x p)_k - s_k with s = w x q (q its pivot).
+    # Squared and summed over channels with weights u_c = rad^2 var_c, that is a quadratic in
+    # p whose coefficients are sums over channels of w w^T (6 numbers), s w^T (9) and s^2 (3):
+    # 18 per-channel features, accumulated down the tree (a position channel adds u_c W^2 / rad^2
+    # to the constant), then expanded per joint. Points are taken relative to the root to keep
+    # the terms small. Everything is channel- or joint-major (leading axis), frames second.
     P0 = Pj - Pj[:1]  # (J, T, 3)
-    q = P0[owner]  # (C, T, 3) pivots
-    M = jnp.swapaxes(jnp.cross(Wc[:, :, None, :], jnp.eye(3, dtype=values.dtype)), -1, -2)
-    sv = jnp.cross(Wc, q)  # M[c, t, k, b] = (w x e_b)_k
+    sv = jnp.cross(Wc, P0[owner])  # (C, T, 3)
     rad2 = (np.pi / 180.0) ** 2
     rot = jnp.asarray(is_rot)[:, None, None]
-    G = jnp.where(rot[..., None, None], M[..., :, :, None] * M[..., :, None, :], 0.0)
-    h = jnp.where(rot[..., None], sv[..., :, None] * M, 0.0)
-    e = jnp.where(rot, sv * sv, Wc * Wc / rad2)
-    feats = jnp.concatenate([G.reshape(C, T, 27), h.reshape(C, T, 9), e], axis=-1)
-    featsw = feats * (rad2 * var[:, :C].T[..., None])  # (C, T, F)
+    w0, w1, w2 = Wc[..., 0], Wc[..., 1], Wc[..., 2]
+    ww = jnp.stack([w0 * w0, w1 * w1, w2 * w2, w1 * w2, w0 * w2, w0 * w1], axis=-1)  # (C, T, 6)
+    sw = (sv[..., :, None] * Wc[..., None, :]).reshape(C, T, 9)  # s_k w_i at 3k + i
+    feats = jnp.concatenate([jnp.where(rot, ww, 0.0), jnp.where(rot, sw, 0.0),
+                             jnp.where(rot, sv * sv, Wc * Wc / rad2)], axis=-1)
+    featsw = feats * (rad2 * var[:, :C].T[..., None])  # (C, T, 18)
     # the channels that move joint j, summed: one product with a static 0/1 (J, C) matrix
     agg = jnp.einsum("jc,ctf->jtf", jnp.asarray(_moving_channels(layout), values.dtype), featsw)
-    Gd, hd, ed = agg[..., :27].reshape(J, T, 3, 3, 3), agg[..., 27:36].reshape(J, T, 3, 3), \
-        agg[..., 36:]
-    pp = P0[..., :, None] * P0[..., None, :]  # (J, T, 3, 3)
-    quad = jnp.sum(Gd * pp[..., None, :, :], axis=(-1, -2))  # elementwise: XLA fuses these
-    lin = jnp.sum(hd * P0[..., None, :], axis=-1)
-    var_p = jnp.maximum(quad - 2 * lin + ed, 0.0)
+    O = agg[..., :6]  # sums of w w^T: xx, yy, zz, yz, xz, xy
+    H = agg[..., 6:15].reshape(J, T, 3, 3)  # H[k, i] = sum of s_k w_i
+    x, y, z = P0[..., 0], P0[..., 1], P0[..., 2]
+    # |(w x p)_k|^2 summed: x: (w_y p_z - w_z p_y)^2, y: (w_z p_x - w_x p_z)^2,
+    # z: (w_x p_y - w_y p_x)^2
+    quad = jnp.stack([O[..., 1] * z * z - 2 * O[..., 3] * y * z + O[..., 2] * y * y,
+                      O[..., 2] * x * x - 2 * O[..., 4] * x * z + O[..., 0] * z * z,
+                      O[..., 0] * y * y - 2 * O[..., 5] * x * y + O[..., 1] * x * x], axis=-1)
+    # (w x p)_k s_k summed: x: H_xy p_z - H_xz p_y, y: H_yz p_x - H_yx p_z, z: H_zx p_y - H_zy p_x
+    lin = jnp.stack([H[..., 0, 1] * z - H[..., 0, 2] * y,
+                     H[..., 1, 2] * x - H[..., 1, 0] * z,
+                     H[..., 2, 0] * y - H[..., 2, 1] * x], axis=-1)
+    var_p = jnp.maximum(quad - 2 * lin + agg[..., 15:], 0.0)
     return P, jnp.swapaxes(var_p, 0, 1)
 
 
