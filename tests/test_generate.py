@@ -282,3 +282,18 @@ def test_learned_style_vectors_keep_the_dense_conditioning():
                                                    optimize_style=("emotion",), progress=False)
     P = predict.condition(m)
     assert P.dyn.rows is None and P.inter.rows is None
+
+
+def test_the_rollout_mean_step_equals_the_dynamics_predictive_mean(tiny_model):
+    from bayesmotion import predict
+
+    P = tiny_model.predictor()
+    rng = np.random.default_rng(5)
+    o, _, q = P.dyn_lags.shape
+    styles = [np.ones((4, 1)), np.array([[1.0, 0.0], [0.0, 1.0], [0.3, 0.7], [1.4, -0.4]])]
+    step, rows = predict.dynamics_mean_stepper(P, styles)
+    for t in range(4):
+        lags = rng.normal(size=(o, q))
+        want = predict.predict_dynamics_mean(P, lags[:, None, :], [s[t:t + 1] for s in styles])
+        np.testing.assert_allclose(np.asarray(step(lags, rows[t])), np.asarray(want[0]),
+                                   rtol=1e-10, atol=1e-12)

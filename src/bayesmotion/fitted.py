@@ -117,7 +117,12 @@ class FittedHGPDM:
     def skeleton(self, actor: int = 0, trial: int | None = None) -> Skeleton:
         """The skeleton of an actor slot, with the bone offsets of a training trial."""
         sk = self.codecs[actor].skeleton
-        return sk if trial is None else sk.with_offsets(self.trials[trial].offsets[actor])
+        if trial is None:
+            return sk
+        key = ("skeleton", actor, trial)  # skeletons are immutable: build each one once
+        if key not in self._cache:
+            self._cache[key] = sk.with_offsets(self.trials[trial].offsets[actor])
+        return self._cache[key]
 
     def level_index(self, factor: str, level: str) -> int:
         if factor not in self.levels:

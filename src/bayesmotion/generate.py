@@ -31,11 +31,11 @@ from .data.motion import Motion
 from .errors import BayesmotionError
 from .predict import (
     Predictor,
+    dynamics_mean_stepper,
     noise_variances,
     predict_bottom,
     predict_bottom_mean,
     predict_dynamics,
-    predict_dynamics_mean,
     predict_interaction,
     predict_interaction_mean,
     style_vectors,
@@ -191,8 +191,10 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
     noise = noise_variances(P)["I"]
     o = I0.shape[0]
 
-    def mean_step(lags, s):
-        new = predict_dynamics_mean(P, lags[:, None, :], [x[None] for x in s])[0]
+    predict_mean, style_rows = dynamics_mean_stepper(P, styles)
+
+    def mean_step(lags, style_row):
+        new = predict_mean(lags, style_row)
         return jnp.concatenate([new[None], lags[:-1]], axis=0), new
 
     def sample_step(lags, inp):
@@ -206,7 +208,7 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
         keys = jax.random.split(key, n_steps)
         _, (I, v) = jax.lax.scan(sample_step, I0[::-1], (tuple(styles), keys))
         return I, v
-    _, I = jax.lax.scan(mean_step, I0[::-1], tuple(styles))
+    _, I = jax.lax.scan(mean_step, I0[::-1], style_rows)
     if not with_var:
         return I, None
     full = jnp.concatenate([I0, I])

@@ -132,11 +132,16 @@ def _fk(values, offsets, end_offsets, *, layout, with_end_sites: bool):
 
 
 def layout_key(skeleton: Skeleton) -> tuple:
-    """Hashable description of everything FK compiles against (not the bone offsets)."""
-    rot_idx, orders = skeleton.rotation_layout()
-    return (skeleton.parents, tuple(map(tuple, rot_idx.tolist())), orders,
-            tuple(map(tuple, skeleton.position_layout().tolist())),
-            tuple(sorted(skeleton.end_sites)))
+    """Hashable description of everything FK compiles against (not the bone offsets); kept on
+    the (immutable) skeleton after the first call."""
+    key = skeleton.__dict__.get("_fk_layout")
+    if key is None:
+        rot_idx, orders = skeleton.rotation_layout()
+        key = (skeleton.parents, tuple(map(tuple, rot_idx.tolist())), orders,
+               tuple(map(tuple, skeleton.position_layout().tolist())),
+               tuple(sorted(skeleton.end_sites)))
+        object.__setattr__(skeleton, "_fk_layout", key)
+    return key
 
 
 def _end_offsets(skeleton: Skeleton) -> np.ndarray:
@@ -342,13 +347,12 @@ def _jitted_fk_variance(layout: tuple):
 
 
 def forward_kinematics_with_variance(skeleton: Skeleton, values, var):
-    """World joint positions (T, J, 3) and their first-order variance (T, J, 3) from channel
-    values (T, C) with independent variances (T, C); compiled per joint layout and padded
-    frame bucket, like :func:`forward_kinematics`."""
+    """World joint positions (T, J, 3) and their first-order variance (T, J, 3), NumPy, from
+    channel values (T, C) with independent variances (T, C); compiled per joint layout and
+    padded frame bucket, like :func:`forward_kinematics`."""
     f = _jitted_fk_variance(layout_key(skeleton))
     values, var = np.asarray(values, np.float64), np.asarray(var, np.float64)
     n = values.shape[0]
     pad = ((0, _bucket(n) - n), (0, 0))
-    p, v = f(jnp.asarray(np.pad(values, pad)), jnp.asarray(np.pad(var, pad)),
-             jnp.asarray(skeleton.offsets))
-    return p[:n], v[:n]
+    p, v = f(np.pad(values, pad), np.pad(var, pad), skeleton.offsets)
+    return np.asarray(p)[:n], np.asarray(v)[:n]
