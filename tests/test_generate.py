@@ -297,3 +297,17 @@ def test_the_rollout_mean_step_equals_the_dynamics_predictive_mean(tiny_model):
         want = predict.predict_dynamics_mean(P, lags[:, None, :], [s[t:t + 1] for s in styles])
         np.testing.assert_allclose(np.asarray(step(lags, rows[t])), np.asarray(want[0]),
                                    rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [50, 257, 300])
+def test_packed_lower_triangular_products_equal_the_dense_product(n):
+    from bayesmotion import predict
+
+    rng = np.random.default_rng(n)
+    L = np.tril(rng.normal(size=(n, n)))
+    k = rng.normal(size=(n, 7))
+    got = np.concatenate(predict.lower_parts(predict.pack_lower(L), k))
+    np.testing.assert_allclose(got, L @ k, rtol=1e-12, atol=1e-12 * np.abs(L @ k).max())
+    fit = predict.LayerFit(predict.pack_lower(L), np.zeros((n, 1)))
+    np.testing.assert_allclose(np.asarray(predict.whitened_norms(fit, k)),
+                               np.sum((L @ k) ** 2, 0), rtol=1e-12)
