@@ -270,6 +270,25 @@ def cell_ids(onehots) -> np.ndarray:
     return ids.ravel()
 
 
+def block_matrices(K_of_rows, noise_var, blocks: Blocks, jitter=0.0) -> jnp.ndarray:
+    """(n_blocks, B, B): each block's kernel + noise_var I, padded to B rows.
+
+    Padding rows get unit variance and no coupling. The jitter is the dense path's,
+    jitter * mean(diag K) over the real rows, added to the real rows only, so a blocked
+    computation equals the dense one at every jitter.
+    """
+    idx, mask = jnp.asarray(blocks.idx), jnp.asarray(blocks.mask)
+
+    def build(ix, m):
+        mm = m[:, None] & m[None, :]
+        return jnp.where(mm, K_of_rows(ix), 0.0) + jnp.diag(jnp.where(m, noise_var, 1.0))
+
+    Ks = jax.vmap(build)(idx, mask)
+    diag = jnp.diagonal(Ks, axis1=1, axis2=2)
+    scale = jnp.sum(jnp.where(mask, diag, 0.0)) / jnp.sum(mask)
+    return Ks + jax.vmap(jnp.diag)(jnp.where(mask, jitter * scale, 0.0))
+
+
 def blocked_gaussian_loglik(K_of_rows, Y, noise_var, blocks: Blocks, jitter=0.0):
     """sum over blocks of log N(Y_b | 0, K_b + noise_var I), vectorised with vmap.
 
@@ -281,17 +300,8 @@ def blocked_gaussian_loglik(K_of_rows, Y, noise_var, blocks: Blocks, jitter=0.0)
     """
     D = Y.shape[1]
     idx, mask = jnp.asarray(blocks.idx), jnp.asarray(blocks.mask)
-
-    def build(ix, m):
-        mm = m[:, None] & m[None, :]
-        return jnp.where(mm, K_of_rows(ix), 0.0) + jnp.diag(jnp.where(m, noise_var, 1.0))
-
-    Ks = jax.vmap(build)(idx, mask)
-    # the dense path's jitter, jitter * mean(diag K) over the real rows, added to the real rows
-    # only: padding rows keep exactly unit variance, whose constant is removed below
-    diag = jnp.diagonal(Ks, axis1=1, axis2=2)
-    scale = jnp.sum(jnp.where(mask, diag, 0.0)) / jnp.sum(mask)
-    Ks = Ks + jax.vmap(jnp.diag)(jnp.where(mask, jitter * scale, 0.0))
+    # padding rows have exactly unit variance: their constant is removed below
+    Ks = block_matrices(K_of_rows, noise_var, blocks, jitter)
 
     def one(K, ix, m):
         Yb = jnp.where(m[:, None], Y[ix], 0.0)

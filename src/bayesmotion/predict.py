@@ -142,15 +142,7 @@ def _fit_blocked(K_of_rows, noise_var, outputs, blocks: layers.Blocks, jitter):
     equals the dense fit's (tested). Padding rows get unit variance, no coupling and zero
     output; :func:`whiten` zeroes their cross-covariances."""
     idx, mask = jnp.asarray(blocks.idx), jnp.asarray(blocks.mask)
-
-    def build(ix, m):
-        mm = m[:, None] & m[None, :]
-        return jnp.where(mm, K_of_rows(ix), 0.0) + jnp.diag(jnp.where(m, noise_var, 1.0))
-
-    Ks = jax.vmap(build)(idx, mask)
-    diag = jnp.diagonal(Ks, axis1=1, axis2=2)
-    scale = jnp.sum(jnp.where(mask, diag, 0.0)) / jnp.sum(mask)
-    Ks = Ks + jax.vmap(jnp.diag)(jnp.where(mask, jitter * scale, 0.0))
+    Ks = layers.block_matrices(K_of_rows, noise_var, blocks, jitter)
     L = jax.vmap(lambda K: layers.safe_cholesky(K, 0.0)[0])(Ks)
     Yb = jnp.where(mask[..., None], outputs[idx], 0.0)
     Ab = jax.vmap(lambda L, y: cho_solve((L, True), y))(L, Yb)
