@@ -152,6 +152,61 @@ def test_blocked_inverses_match_numpy(rng, n):
     np.testing.assert_array_equal(Kinv, Kinv.T)
 
 
+@pytest.mark.parametrize("path", ["public", "lapack", "xla"])
+def test_cholesky_inverse_matches_numpy(rng, path):
+    """Both implementations (LAPACK callback on CPU from N = 256, XLA elsewhere), single and
+    batched (vmap), float64 and float32; a matrix that is not positive definite gives a NaN
+    diagonal, the callers' failure test."""
+    fn = {"public": linalg.cholesky_inverse, "lapack": linalg._cholesky_inverse_lapack,
+          "xla": linalg._cholesky_inverse_xla}[path]
+    n = 300
+    Ks = []
+    for _ in range(2):
+        A = rng.normal(size=(n, n))
+        Ks.append(A @ A.T / n + 0.5 * np.eye(n))
+    d, Kinv = jax.jit(fn)(jnp.asarray(Ks[0]))
+    np.testing.assert_allclose(d, np.diag(np.linalg.cholesky(Ks[0])), rtol=1e-12)
+    np.testing.assert_allclose(Kinv, np.linalg.inv(Ks[0]), rtol=1e-9, atol=1e-11)
+    np.testing.assert_allclose(Kinv, np.asarray(Kinv).T, rtol=1e-13, atol=1e-15)
+    db, Kb = jax.jit(jax.vmap(fn))(jnp.asarray(np.stack(Ks)))
+    for b, K in enumerate(Ks):
+        np.testing.assert_allclose(Kb[b], np.linalg.inv(K), rtol=1e-9, atol=1e-11)
+    d32, K32 = jax.jit(fn)(jnp.asarray(Ks[1], jnp.float32))
+    assert K32.dtype == jnp.float32
+    np.testing.assert_allclose(K32, np.linalg.inv(Ks[1]), rtol=2e-3, atol=2e-3)
+    bad = Ks[0] - 10 * np.eye(n)
+    assert np.all(np.isnan(np.asarray(jax.jit(fn)(jnp.asarray(bad))[0])))
+
+
+def test_layer_gradient_at_lapack_size_equals_dense_reference(rng):
+    """N = 300 takes the LAPACK path on CPU: value and d logp / dK of gaussian_loglik against
+    scipy and the closed form (alpha alpha^T - D K^-1) / 2; gplvm_loglik's gradient against
+    autodiff through jnp.linalg.cholesky; -inf with a zero gradient outside the support."""
+    n, D = 300, 5
+    X, Y = rng.normal(size=(n, 3)), rng.normal(size=(n, D))
+    g = jnp.array([1.3, 0.8, 30.0])
+    K = np.asarray(kernels.bottom_kernel(X, X, g)) + np.eye(n) / 30.0
+    v, dK = jax.value_and_grad(layers.gaussian_loglik)(jnp.asarray(K), jnp.asarray(Y))
+    np.testing.assert_allclose(float(v), dense_loglik(K, Y), rtol=1e-10)
+    Kinv = np.linalg.inv(K)
+    alpha = Kinv @ Y
+    ref = 0.5 * (alpha @ alpha.T - D * Kinv)
+    np.testing.assert_allclose(dK, ref, rtol=1e-8, atol=1e-11 * np.abs(ref).max())
+
+    def reference(X, g):
+        L = jnp.linalg.cholesky(kernels.bottom_kernel(X, X, g) + jnp.eye(n) / g[2])
+        z = jax.scipy.linalg.solve_triangular(L, Y, lower=True)
+        return -0.5 * jnp.sum(z**2) - D * jnp.sum(jnp.log(jnp.diag(L))) - 0.5 * n * D * np.log(
+            2 * np.pi)
+
+    grads = jax.jit(jax.grad(layers.gplvm_loglik, argnums=(0, 2)))(jnp.asarray(X), Y, g)
+    for a, b in zip(grads, jax.grad(reference, argnums=(0, 1))(jnp.asarray(X), g), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-8, atol=1e-9 * float(jnp.max(jnp.abs(b))))
+    bad = jnp.array([1.0, 0.5, -0.5])
+    v, grads = jax.value_and_grad(layers.gplvm_loglik, argnums=(0, 2))(X, Y, bad)
+    assert v == -jnp.inf and all(np.all(np.asarray(d) == 0) for d in grads)
+
+
 @pytest.mark.parametrize("jitter", [0.0, 1e-3])
 def test_hand_written_gplvm_gradient_equals_autodiff_of_generic_layer(rng, jitter):
     """gplvm_loglik's own VJP against autodiff of gaussian_loglik on the same kernel, for every

@@ -17,11 +17,17 @@ busy-wait; with the cores shared (XLA's own pool, other processes) the threaded 
 5-21x slower than one thread on the 2-core target machine (benchmarks/results/blas_threads.json).
 bayesmotion therefore sets ``OPENBLAS_NUM_THREADS=1`` unless the caller set it. It applies when
 SciPy's OpenBLAS is loaded after bayesmotion is imported (the usual case: jaxlib loads it on the
-first factorisation).
+first factorisation). The exception is :func:`bayesmotion.linalg.cholesky_inverse`, which
+raises the count for its own calling thread (``openblas_set_num_threads_local``) while XLA's
+pool is blocked on it.
 """
 
 import os
 
+#: True when bayesmotion chose the one-thread default (the caller had not set it); then the
+#: large factorisations of :func:`bayesmotion.linalg.cholesky_inverse`, which run while XLA's
+#: pool waits on them, use every core for their own thread only.
+BLAS_THREADS_DEFAULTED = "OPENBLAS_NUM_THREADS" not in os.environ
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import jax  # noqa: E402

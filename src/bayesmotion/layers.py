@@ -19,7 +19,7 @@ import numpy as np
 from jax.scipy.linalg import solve_triangular
 
 from . import kernels
-from .linalg import lower_gram, triangular_inverse
+from .linalg import cholesky_inverse
 
 LOG_2PI = float(np.log(2 * np.pi))
 
@@ -59,23 +59,25 @@ def _factor(K):
     return L, jnp.all(jnp.isfinite(jnp.diag(L)))
 
 
-def _value(quad, L, N, D, ok):
-    val = -0.5 * quad - D * jnp.sum(jnp.log(jnp.diag(L))) - 0.5 * N * D * LOG_2PI
+def _value(quad, diag, N, D, ok):
+    """The log-density from the quadratic form and the Cholesky factor's diagonal."""
+    val = -0.5 * quad - D * jnp.sum(jnp.log(diag)) - 0.5 * N * D * LOG_2PI
     return jnp.where(ok & jnp.isfinite(val), val, -jnp.inf)
 
 
-def _primal(L, Y, ok):
+def _primal(L, ok, Y):
     """The value alone: one triangular solve."""
-    return _value(jnp.sum(solve_triangular(L, Y, lower=True) ** 2), L, *Y.shape, ok)
+    return _value(jnp.sum(solve_triangular(L, Y, lower=True) ** 2), jnp.diag(L), *Y.shape, ok)
 
 
-def _with_inverse(L, Y, ok):
-    """Under differentiation: K^-1 = L^-T L^-1 once, by blocks (:mod:`bayesmotion.linalg`); the
-    VJP needs it (d log|K| / dK), and it gives alpha = K^-1 Y in one product and the quadratic
-    form as sum(Y o alpha). Returns (value, K^-1, alpha)."""
-    Kinv = lower_gram(triangular_inverse(L))
+def _with_inverse(K, Y):
+    """Under differentiation: K^-1 once (:func:`bayesmotion.linalg.cholesky_inverse`); the VJP
+    needs it (d log|K| / dK), and it gives alpha = K^-1 Y in one product and the quadratic form
+    as sum(Y o alpha). Returns (value, K^-1, alpha, ok)."""
+    diag, Kinv = cholesky_inverse(K)
+    ok = jnp.all(jnp.isfinite(diag))
     alpha = Kinv @ Y
-    return _value(jnp.sum(Y * alpha), L, *Y.shape, ok), Kinv, alpha
+    return _value(jnp.sum(Y * alpha), diag, *Y.shape, ok), Kinv, alpha, ok
 
 
 def _dlogp_dK(Kinv, alpha, ok):
@@ -86,13 +88,11 @@ def _dlogp_dK(Kinv, alpha, ok):
 
 @jax.custom_vjp
 def _loglik_chol(K, Y):
-    L, ok = _factor(K)
-    return _primal(L, Y, ok)
+    return _primal(*_factor(K), Y)
 
 
 def _loglik_fwd(K, Y):
-    L, ok = _factor(K)
-    val, Kinv, alpha = _with_inverse(L, Y, ok)
+    val, Kinv, alpha, ok = _with_inverse(K, Y)
     return val, (Kinv, alpha, ok)
 
 
@@ -122,25 +122,24 @@ def gplvm_loglik(X, Y, gamma, jitter=0.0):
     return _rbf_gplvm(X, Y, gamma, jnp.asarray(jitter, dtype))
 
 
-def _rbf_gplvm_factor(X, gamma, jitter):
-    """(E, L, ok): E = exp(-gamma2/2 |x - x'|^2), the kernel without its variance gamma1 (kept
-    apart so that d/dgamma1 = sum(W o E) stays finite when gamma1 underflows to 0), and the
-    Cholesky factor of K = gamma1 E + noise I."""
+def _rbf_gplvm_kernel(X, gamma, jitter):
+    """(E, K): E = exp(-gamma2/2 |x - x'|^2), the kernel without its variance gamma1 (kept
+    apart so that d/dgamma1 = sum(W o E) stays finite when gamma1 underflows to 0), and
+    K = gamma1 E + noise I."""
     E = kernels.rbf(X, X, 1.0, gamma[1])
     # gaussian_loglik's jitter is relative to mean(diag K) = gamma1 + 1/gamma3
     noise = 1.0 / gamma[2] + jitter * (gamma[0] + 1.0 / gamma[2])
-    return (E, *_factor(gamma[0] * E + noise * jnp.eye(X.shape[0], dtype=E.dtype)))
+    return E, gamma[0] * E + noise * jnp.eye(X.shape[0], dtype=E.dtype)
 
 
 @jax.custom_vjp
 def _rbf_gplvm(X, Y, gamma, jitter):
-    _, L, ok = _rbf_gplvm_factor(X, gamma, jitter)
-    return _primal(L, Y, ok)
+    return _primal(*_factor(_rbf_gplvm_kernel(X, gamma, jitter)[1]), Y)
 
 
 def _rbf_gplvm_fwd(X, Y, gamma, jitter):
-    E, L, ok = _rbf_gplvm_factor(X, gamma, jitter)
-    val, Kinv, alpha = _with_inverse(L, Y, ok)
+    E, K = _rbf_gplvm_kernel(X, gamma, jitter)
+    val, Kinv, alpha, ok = _with_inverse(K, Y)
     return val, (X, gamma, jitter, E, Kinv, alpha, ok)
 
 
