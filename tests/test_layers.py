@@ -178,6 +178,20 @@ def test_cholesky_inverse_matches_numpy(rng, path):
     assert np.all(np.isnan(np.asarray(jax.jit(fn)(jnp.asarray(bad))[0])))
 
 
+def test_lapack_path_restores_the_blas_thread_count(rng):
+    """The host factorisation raises OpenBLAS's threads for its own thread only and puts the
+    previous count back (the rest of the process keeps bayesmotion's one thread)."""
+    set_local = linalg._set_threads_local()
+    if set_local is None:
+        pytest.skip("no scipy-bundled OpenBLAS with openblas_set_num_threads_local here, or "
+                    "OPENBLAS_NUM_THREADS was set by the caller")
+    before = set_local(1)
+    A = rng.normal(size=(300, 300))
+    d, Kinv = linalg._host_cholesky_inverse(A @ A.T / 300 + np.eye(300))
+    assert set_local(before) == 1
+    np.testing.assert_allclose(Kinv @ (A @ A.T / 300 + np.eye(300)), np.eye(300), atol=1e-10)
+
+
 def test_layer_gradient_at_lapack_size_equals_dense_reference(rng):
     """N = 300 takes the LAPACK path on CPU: value and d logp / dK of gaussian_loglik against
     scipy and the closed form (alpha alpha^T - D K^-1) / 2; gplvm_loglik's gradient against

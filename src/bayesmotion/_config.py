@@ -24,11 +24,15 @@ pool is blocked on it.
 
 import os
 
-#: True when bayesmotion chose the one-thread default (the caller had not set it); then the
-#: large factorisations of :func:`bayesmotion.linalg.cholesky_inverse`, which run while XLA's
-#: pool waits on them, use every core for their own thread only.
-BLAS_THREADS_DEFAULTED = "OPENBLAS_NUM_THREADS" not in os.environ
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+#: True when bayesmotion chose the one-thread default (the caller had not set it; a value this
+#: module set in a parent process and its children inherited counts as not set, hence the
+#: marker variable); then the large factorisations of
+#: :func:`bayesmotion.linalg.cholesky_inverse`, which run while XLA's pool waits on them, use
+#: every core for their own thread only.
+_MARK = "BAYESMOTION_SET_OPENBLAS_NUM_THREADS"
+BLAS_THREADS_DEFAULTED = os.environ.get("OPENBLAS_NUM_THREADS") in (None, os.environ.get(_MARK))
+if "OPENBLAS_NUM_THREADS" not in os.environ:
+    os.environ["OPENBLAS_NUM_THREADS"] = os.environ[_MARK] = "1"
 
 import jax  # noqa: E402
 

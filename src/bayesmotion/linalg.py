@@ -74,12 +74,14 @@ def _host_cholesky_inverse(K):
     inv = np.empty(flat.shape, K.dtype)
     with _blas_threads():
         for b, k in enumerate(flat):
-            c, info = potrf(k.T, lower=0, clean=0, overwrite_a=0)
+            inv[b] = k  # potrf and potri then work in place on inv[b].T (Fortran order)
+            c, info = potrf(inv[b].T, lower=0, clean=0, overwrite_a=1)
             diag[b] = np.diag(c) if info == 0 else np.nan
             if info == 0:
                 c, info = potri(c, lower=0, overwrite_c=1)
-            inv[b] = c.T  # lower triangle: K^-1 (upper: whatever potrf/potri left there)
-            _fill_upper(inv[b])
+            if not np.shares_memory(c, inv[b]):  # a LAPACK wrapper that copied after all
+                inv[b] = c.T
+            _fill_upper(inv[b])  # lower triangle: K^-1; upper: what potrf/potri left there
     return diag.reshape(K.shape[:-1]), inv.reshape(K.shape)
 
 
