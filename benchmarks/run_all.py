@@ -6,7 +6,8 @@ Every benchmark is a module ``benchmarks/<name>.py`` with ``run(quick: bool) -> 
 runs in its own child process (fresh JAX caches, no interference between benchmarks, a hang or
 crash in one does not stop the others) and its result is written atomically to
 ``results/<name>.json`` together with the machine info (CPU model, cores, versions, date, load)
-and the settings. OpenBLAS runs single-threaded by default (``--blas-threads``; the
+and the settings. The environment is left alone by default (``--blas-threads``), so bayesmotion
+applies its own OpenBLAS thread policy, as for a user (the
 ``blas_threads`` benchmark measures the default-thread case). ``results/README.md`` is then
 rebuilt from every result file present: a markdown table of the headline numbers and targets.
 
@@ -192,10 +193,11 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="small sizes, a few minutes in all")
     ap.add_argument("--only", nargs="+", choices=BENCHMARKS, metavar="NAME",
                     help=f"run only these ({', '.join(BENCHMARKS)})")
-    ap.add_argument("--blas-threads", default="1", metavar="N",
-                    help="OPENBLAS_NUM_THREADS for the benchmarks (default 1: threaded OpenBLAS "
-                         "inside XLA's own thread pool oversubscribes the cores, see the "
-                         "blas_threads benchmark; 'inherit' leaves the environment alone); "
+    ap.add_argument("--blas-threads", default="inherit", metavar="N",
+                    help="OPENBLAS_NUM_THREADS for the benchmarks (default 'inherit': leave the "
+                         "environment alone, so bayesmotion applies its own policy as for a "
+                         "user: one OpenBLAS thread, except inside its large factorisations, "
+                         "see bayesmotion._config; a number sets it for every library); "
                          "recorded in each JSON's machine.thread_env")
     ap.add_argument("--readme", action="store_true",
                     help="only rebuild results/README.md from the JSON files")
