@@ -272,6 +272,45 @@ def test_blocked_conditioning_predicts_what_the_dense_one_does(tiny_model, which
                                        atol=1e-10 * float(np.max(np.abs(w))))
 
 
+@pytest.mark.parametrize("emotion", [[1.0, 0.0], [0.0, 1.0], [0.3, 0.7]])
+def test_restricting_to_the_cells_a_style_sees_changes_no_prediction(tiny_model, emotion):
+    """restrict_to_styles drops the cells whose style factor is exactly 0 for every new input:
+    one-hot styles keep one cell, a mixture keeps both; predictions equal the full ones."""
+    from bayesmotion import predict
+
+    P = tiny_model.predictor()
+    styles = [[1.0], emotion]
+    S = [np.broadcast_to(np.asarray(s, float), (7, len(s))) for s in styles]
+    R = predict.restrict_to_styles(P, S, S)
+    n_cells = 1 if 0.0 in emotion else 2
+    assert R.dyn.Linv.shape[0] == R.inter.Linv.shape[0] == n_cells
+    assert R.I.shape[0] == n_cells * P.inter.rows.shape[1]
+    for seed in range(2):
+        got = _predictions(R, np.random.default_rng(seed), styles)
+        want = _predictions(P, np.random.default_rng(seed), styles)
+        for g, w in zip(got, want, strict=True):
+            np.testing.assert_allclose(np.asarray(g), np.asarray(w), rtol=1e-12,
+                                       atol=1e-13 * float(np.max(np.abs(w))))
+
+
+def test_generate_with_restricted_cells_equals_the_full_predictor(tiny_model, monkeypatch):
+    """The public rollout (mean, every variance, sampled rollouts) is the same with and without
+    the cell restriction, for a transition between the two emotions and for one emotion."""
+    import bayesmotion.generate as G
+
+    for emotion in ("sad", G.Transition("happy", "sad", 4, 5)):
+        got = tiny_model.generate(emotion=emotion, n_frames=14, n_samples=3)
+        monkeypatch.setattr(G, "restrict_to_styles", lambda P, d, i: P)
+        want = tiny_model.generate(emotion=emotion, n_frames=14, n_samples=3)
+        monkeypatch.undo()
+        for k in ("I", "I_var", "X", "X_var", "Y_var", "positions", "positions_var"):
+            w = getattr(want, k)
+            np.testing.assert_allclose(getattr(got, k), w, rtol=1e-10,
+                                       atol=1e-12 * max(float(np.max(np.abs(w))), 1e-300))
+        np.testing.assert_allclose(got.samples["positions"], want.samples["positions"],
+                                   rtol=1e-10, atol=1e-12 * np.abs(want.samples["positions"]).max())
+
+
 def test_learned_style_vectors_keep_the_dense_conditioning():
     """Learned (non one-hot) style vectors couple the cells: no block structure to use."""
     from bayesmotion import HGPDM, predict

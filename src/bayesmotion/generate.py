@@ -38,6 +38,7 @@ from .predict import (
     predict_dynamics,
     predict_interaction,
     predict_interaction_mean,
+    restrict_to_styles,
     style_vectors,
 )
 
@@ -334,6 +335,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
     dyn_f, int_f = model.spec.dynamics_factors, model.spec.interaction_factors
     dyn_s = tuple(style_vectors(P, dyn_f, [coords[f][o:] for f in dyn_f]))
     int_s = tuple(style_vectors(P, int_f, [coords[f] for f in int_f]))
+    P = restrict_to_styles(P, dyn_s, int_s)  # exact: drops the style cells no frame sees
     key = jax.random.PRNGKey(seed)
     I_gen, I_var = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n_frames - o, False)
     I = np.concatenate([I0, np.asarray(I_gen)])

@@ -229,6 +229,52 @@ def _condition(spec, data, params, jitter, blocked=True) -> Predictor:
                      X, tuple(Ls), tuple(As), h["gamma"], vectors)
 
 
+def restrict_to_styles(P: Predictor, dyn_style_new, int_style_new) -> Predictor:
+    """P without the style cells that no new input can see: the same predictions, less work.
+
+    In a blocked layer a cell's training rows enter a prediction only through the style
+    factor prod_f (s_f . s_f') of the new input against the cell's one-hot styles; where that
+    is exactly 0 for every new input (a rollout at one emotion: 7 of the 8 built-in cells)
+    the rows' cross-covariances are exactly 0 and add nothing to the mean or the variance.
+    Dropping them is exact, not an approximation (tested against the full predictor). Dense
+    layers (learned or sampled style vectors) are returned as they are.
+
+    Args:
+        dyn_style_new: per dynamics factor, (B, K_f) style vectors of the new inputs.
+        int_style_new: per interaction factor, (B, K_f).
+    """
+    out = {}
+    if P.dyn.rows is not None:
+        keep = _seen_cells(P.dyn, P.dyn_style, dyn_style_new)
+        fit, idx = _keep_cells(P.dyn, keep)
+        out.update(dyn=fit, dyn_lags=P.dyn_lags[:, idx],
+                   dyn_style=tuple(s[idx] for s in P.dyn_style))
+    if P.inter.rows is not None:
+        keep = _seen_cells(P.inter, P.int_style, int_style_new)
+        fit, idx = _keep_cells(P.inter, keep)
+        out.update(inter=fit, I=P.I[idx], int_style=tuple(s[idx] for s in P.int_style))
+    return P._replace(**out)
+
+
+def _seen_cells(fit: LayerFit, train_style, new_style) -> np.ndarray:
+    """Cells whose style factor is nonzero for some new input (host NumPy; exact zeros)."""
+    first = np.asarray(fit.rows)[:, 0]  # a real row of each cell (padding comes last)
+    w = np.ones((np.asarray(new_style[0]).shape[0] if new_style else 1, first.size))
+    for s_new, s_train in zip(new_style, train_style, strict=True):
+        w = w * (np.asarray(s_new) @ np.asarray(s_train)[first].T)
+    keep = np.flatnonzero(np.any(w != 0.0, axis=0))
+    return keep if keep.size else np.arange(1)  # all zero: one cell, contributing 0
+
+
+def _keep_cells(fit: LayerFit, keep: np.ndarray):
+    """(LayerFit of the kept cells over their own rows, those rows' indices in the layer)."""
+    rows = np.asarray(fit.rows)[keep]
+    idx = rows.ravel()
+    mask = fit.mask[keep]
+    A = fit.A[idx] * mask.reshape(-1)[:, None]  # padding rows repeat a real row: weight 0
+    return LayerFit(fit.Linv[keep], A, jnp.arange(idx.size).reshape(rows.shape), mask), idx
+
+
 def _mean_var(kx, kxx, fit: LayerFit):
     """kx: (M, B) cross-covariances, kxx: (B,) prior variances -> mean (B, D), var (B,)."""
     return kx.T @ fit.A, jnp.maximum(kxx - whitened_norms(fit, kx), 0.0)
