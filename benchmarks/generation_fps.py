@@ -21,6 +21,9 @@ Timed after warm-up (median of repeats), each producing ``n_frames`` frames of b
   the per-frame variances of the dynamics and the top-down mapping, and overstated the cost);
 * ``dynamics_rollout_core``: the jitted ``lax.scan`` core alone (latent frames), mean and 16
   vmapped sampled rollouts;
+* the rows below ``generate_*`` use the predictor as ``generate`` does since 2026-11-22:
+  restricted to the style cells the rollout's styles see (``restrict_to_styles``, exact; one
+  of the 8 built-in cells for a rollout at one emotion);
 * a profile of the public call's parts: conditioning, dynamics rollout, top-down mapping,
   decoding to channels, FK, positions with their variance (analytic FK Jacobian).
 """
@@ -114,10 +117,12 @@ def measure_model(model, T: int, repeats: int) -> dict:
     from _common import block, timeit
 
     from bayesmotion.generate import _map_and_decode, dynamics_rollout, generate
-    from bayesmotion.predict import condition
+    from bayesmotion.predict import condition, restrict_to_styles
 
     P = block(condition(model))
     r, I0, dyn_s, int_s = _inputs(model, T)
+    # what generate() runs on: the predictor without the style cells the rollout cannot see
+    P = block(restrict_to_styles(P, dyn_s, int_s))
     o = model.spec.order
     key = jax.random.PRNGKey(0)
     keys = jax.random.split(key, 16)
