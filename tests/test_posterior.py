@@ -173,6 +173,28 @@ def test_emcee_and_nuts_agree_on_a_small_model(tiny_model):
 
 
 @pytest.mark.slow
+def test_diagnostics_bypass_arviz_numba_path(monkeypatch):
+    """With numba on, arviz 0.2x's mcse(method="sd") converts a 1-element array to float,
+    an error under numpy >= 2.5 (a DeprecationWarning before, an error here by the test
+    config); compare_posteriors and convergence run arviz's NumPy path instead and put the
+    flag back."""
+    from types import SimpleNamespace
+
+    import arviz as az
+    from arviz.utils import Numba
+
+    rng = np.random.default_rng(0)
+    post = [SimpleNamespace(chains=rng.normal(size=(4, 200, 2)), acceptance=np.full(4, 0.3),
+                            target=SimpleNamespace(names=["a", "b"])) for _ in range(2)]
+    monkeypatch.setattr(Numba, "numba_flag", True)
+    with pytest.raises((TypeError, DeprecationWarning)):  # the bug this works around
+        az.mcse(az.convert_to_dataset({"theta": post[0].chains}), method="sd")
+    res = compare_posteriors(*post)
+    assert np.all(np.isfinite(res["mcse_sd_a"])) and res["max_rhat"] < 1.05
+    assert convergence(post[0])["min_ess_bulk"] > 300
+    assert Numba.numba_flag is True
+
+
 def test_posterior_predictive_decomposes_variance(tiny_model):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 
 import numpy as np
@@ -72,6 +73,22 @@ def _theta(x):
         return az.convert_to_dataset({"theta": np.asarray(x)})
 
 
+@contextlib.contextmanager
+def arviz_without_numba():
+    """Run arviz diagnostics on its NumPy path. With numba installed, arviz 0.2x's numba path
+    of ``mcse(method="sd")`` (also inside ``az.summary``) fails under numpy >= 2.5: "only
+    0-dimensional arrays can be converted to Python scalars" (seen with arviz 0.23.4, numpy
+    2.5.2, numba installed). The flag is restored afterwards."""
+    from arviz.utils import Numba
+
+    was = Numba.numba_flag
+    Numba.numba_flag = False
+    try:
+        yield
+    finally:
+        Numba.numba_flag = was
+
+
 def compare_posteriors(a, b, var_names=None) -> dict:
     """Compare two posteriors of the same target (e.g. emcee vs NUTS).
 
@@ -93,12 +110,11 @@ def compare_posteriors(a, b, var_names=None) -> dict:
     da, xa = ds(a)
     db, xb = ds(b)
     mean_a, mean_b = xa.mean((0, 1)), xb.mean((0, 1))
-    se_a = az.mcse(da)["theta"].values
-    se_b = az.mcse(db)["theta"].values
+    with arviz_without_numba():
+        se_a, se_b = (az.mcse(d)["theta"].values for d in (da, db))
+        sse_a, sse_b = (az.mcse(d, method="sd")["theta"].values for d in (da, db))
     z = (mean_a - mean_b) / np.sqrt(se_a**2 + se_b**2)
     sd_a, sd_b = xa.std((0, 1)), xb.std((0, 1))
-    sse_a = az.mcse(da, method="sd")["theta"].values
-    sse_b = az.mcse(db, method="sd")["theta"].values
     z_sd = (sd_a - sd_b) / np.sqrt(sse_a**2 + sse_b**2)
     pooled = np.concatenate([a.chains[:, -n:], b.chains[:, -n:]])
     rhat = az.rhat(_theta(pooled))["theta"].values
@@ -114,7 +130,8 @@ def convergence(post) -> dict:
     import arviz as az
 
     d = _theta(post.chains)
-    return {"max_rhat": float(az.rhat(d)["theta"].max()),
-            "min_ess_bulk": float(az.ess(d, method="bulk")["theta"].min()),
-            "min_ess_tail": float(az.ess(d, method="tail")["theta"].min()),
-            "mean_acceptance": float(np.mean(post.acceptance))}
+    with arviz_without_numba():
+        return {"max_rhat": float(az.rhat(d)["theta"].max()),
+                "min_ess_bulk": float(az.ess(d, method="bulk")["theta"].min()),
+                "min_ess_tail": float(az.ess(d, method="tail")["theta"].min()),
+                "mean_acceptance": float(np.mean(post.acceptance))}

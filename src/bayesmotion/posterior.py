@@ -230,7 +230,10 @@ class Posterior:
         """arviz summary (mean, sd, HDI, MCSE, bulk/tail ESS, R-hat) of constrained values."""
         import arviz as az
 
-        return az.summary(self.idata, **kwargs)
+        from .diagnostics import arviz_without_numba
+
+        with arviz_without_numba():
+            return az.summary(self.idata, **kwargs)
 
     def plot_trace(self, var_names=None, **kwargs):
         import arviz as az
