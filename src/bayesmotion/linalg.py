@@ -15,6 +15,7 @@ factor's diagonal (for log|K|):
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
 import glob
@@ -85,18 +86,20 @@ def _host_cholesky_inverse(K):
     return diag.reshape(K.shape[:-1]), inv.reshape(K.shape)
 
 
-class _blas_threads:
-    """Context: scipy's OpenBLAS uses every available core for the calling thread only, when
+@contextlib.contextmanager
+def _blas_threads():
+    """scipy's OpenBLAS uses every available core for the calling thread only, when
     bayesmotion chose the one-thread default (``_config``); a no-op for other BLAS builds or
     when the caller set ``OPENBLAS_NUM_THREADS`` themselves."""
-
-    def __enter__(self):
-        fn = _set_threads_local()
-        self.prev = fn(len(os.sched_getaffinity(0))) if fn else None
-
-    def __exit__(self, *exc):
-        if self.prev is not None:
-            _set_threads_local()(self.prev)
+    set_local = _set_threads_local()
+    if set_local is None:
+        yield
+        return
+    prev = set_local(len(os.sched_getaffinity(0)))
+    try:
+        yield
+    finally:
+        set_local(prev)
 
 
 @functools.cache
