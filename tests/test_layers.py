@@ -192,6 +192,20 @@ def test_lapack_path_restores_the_blas_thread_count(rng):
     np.testing.assert_allclose(Kinv @ (A @ A.T / 300 + np.eye(300)), np.eye(300), atol=1e-10)
 
 
+def test_blas_threads_are_raised_only_when_other_processes_leave_the_cores_idle(monkeypatch):
+    """The decision uses windows of >= 0.25 s: machine busy time minus this process's CPU time
+    per wall second; under half a core used by others -> idle. No sample (not Linux) -> no."""
+    assert linalg.others_cores(3.0, 1.0, 2.0) == 1.0
+    samples = iter([(10.0, 1.0, 100.0),    # first window starts: no history yet -> no
+                    (10.5, 1.4, 100.1),    # 0.1 s later: too short a window, keep the answer
+                    (11.6, 2.4, 101.0),    # others: (1.6 - 1.4) / 1.0 = 0.2 cores -> idle
+                    (13.6, 2.6, 102.0),    # others: (2.0 - 0.2) / 1.0 = 1.8 cores -> busy
+                    None])                  # no /proc/stat -> no
+    load = linalg._OtherLoad()
+    monkeypatch.setattr(load, "_sample", lambda: next(samples))
+    assert [load.idle() for _ in range(5)] == [False, False, True, False, False]
+
+
 def test_layer_gradient_at_lapack_size_equals_dense_reference(rng):
     """N = 300 takes the LAPACK path on CPU: value and d logp / dK of gaussian_loglik against
     scipy and the closed form (alpha alpha^T - D K^-1) / 2; gplvm_loglik's gradient against
