@@ -19,7 +19,9 @@ bayesmotion therefore sets ``OPENBLAS_NUM_THREADS=1`` unless the caller set it. 
 SciPy's OpenBLAS is loaded after bayesmotion is imported (the usual case: jaxlib loads it on the
 first factorisation). The exception is :func:`bayesmotion.linalg.cholesky_inverse`, which
 raises the count for its own calling thread (``openblas_set_num_threads_local``) while XLA's
-pool is blocked on it.
+pool is blocked on it, and only while other processes leave the cores idle. To keep every
+BLAS call on one thread (e.g. when running several bayesmotion processes side by side), set
+``OPENBLAS_NUM_THREADS=1`` yourself.
 """
 
 import os
