@@ -8,7 +8,7 @@ from jax.test_util import check_grads
 from scipy.stats import multivariate_normal
 
 import bayesmotion  # noqa: F401  (float64)
-from bayesmotion import kernels, layers, linalg
+from bayesmotion import _blas, kernels, layers, linalg
 
 
 def dense_loglik(K, Y):
@@ -181,7 +181,7 @@ def test_cholesky_inverse_matches_numpy(rng, path):
 def test_lapack_path_restores_the_blas_thread_count(rng):
     """The host factorisation raises OpenBLAS's threads for its own thread only and puts the
     previous count back (the rest of the process keeps bayesmotion's one thread)."""
-    set_local = linalg._set_threads_local()
+    set_local = _blas._set_threads_local()
     if set_local is None:
         pytest.skip("no scipy-bundled OpenBLAS with openblas_set_num_threads_local here, or "
                     "OPENBLAS_NUM_THREADS was set by the caller")
@@ -195,13 +195,13 @@ def test_lapack_path_restores_the_blas_thread_count(rng):
 def test_blas_threads_are_raised_only_when_other_processes_leave_the_cores_idle(monkeypatch):
     """The decision uses windows of >= 0.25 s: machine busy time minus this process's CPU time
     per wall second; under half a core used by others -> idle. No sample (not Linux) -> no."""
-    assert linalg.others_cores(3.0, 1.0, 2.0) == 1.0
+    assert _blas.others_cores(3.0, 1.0, 2.0) == 1.0
     samples = iter([(10.0, 1.0, 100.0),    # first window starts: no history yet -> no
                     (10.5, 1.4, 100.1),    # 0.1 s later: too short a window, keep the answer
                     (11.6, 2.4, 101.0),    # others: (1.6 - 1.4) / 1.0 = 0.2 cores -> idle
                     (13.6, 2.6, 102.0),    # others: (2.0 - 0.2) / 1.0 = 1.8 cores -> busy
                     None])                  # no /proc/stat -> no
-    load = linalg._OtherLoad()
+    load = _blas._OtherLoad()
     monkeypatch.setattr(load, "_sample", lambda: next(samples))
     assert [load.idle() for _ in range(5)] == [False, False, True, False, False]
 
