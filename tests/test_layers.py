@@ -32,6 +32,18 @@ def test_rbf_matches_loop_and_is_symmetric_psd(rng):
     assert np.linalg.eigvalsh(K).min() > -1e-10
 
 
+def test_rbf_second_derivatives_exact_where_inputs_coincide(rng):
+    """Second derivatives of the kernel at a point equal to a training input (where a clip's
+    projection starts): d^2/da^2 of v exp(-l/2 |a - b|^2) at a = b is -v l I. The clip of
+    rounding-negative squared distances must not zero it."""
+    B = rng.normal(size=(5, 3)) * 3.0
+    for j in range(5):
+        H = jax.hessian(lambda a: kernels.rbf(a[None], B, 1.7, 0.6)[0, j])(jnp.asarray(B[j]))
+        np.testing.assert_allclose(H, -1.7 * 0.6 * np.eye(3), rtol=1e-10, atol=1e-12)
+    D = np.asarray(kernels.sqdist(B, B))
+    assert np.all(D >= 0) and np.all(np.diag(D) < 1e-12 * np.sum(B**2, 1))
+
+
 def test_gplvm_loglik_matches_scipy(rng):
     X, Y = rng.normal(size=(15, 2)), rng.normal(size=(15, 4))
     gamma = jnp.array([1.3, 0.7, 20.0])

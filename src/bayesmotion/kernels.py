@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import jax
 import jax.numpy as jnp
 
 
@@ -22,9 +23,13 @@ def sqdist(A: jnp.ndarray, B: jnp.ndarray) -> jnp.ndarray:
     """Squared Euclidean distances. A: (N, Q), B: (M, Q) -> (N, M), clipped at 0.
 
     Uses |a|^2 + |b|^2 - 2 a.b (one matmul); no square root, so gradients are finite at 0.
+    The clip changes the value only (straight through): derivatives of every order are those
+    of the polynomial. A plain ``maximum`` zeroes the second derivative wherever rounding makes
+    d slightly negative -- at a point equal to a training input, where the projection of a clip
+    starts -- and gave Hessians of the clip density wrong by a factor of 4 on the diagonal.
     """
     d = jnp.sum(A**2, -1)[:, None] + jnp.sum(B**2, -1)[None, :] - 2.0 * A @ B.T
-    return jnp.maximum(d, 0.0)
+    return d + jax.lax.stop_gradient(jnp.maximum(d, 0.0) - d)
 
 
 def rbf(A, B, variance, inv_lengthscale):
