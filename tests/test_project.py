@@ -1,0 +1,130 @@
+"""Projection of a clip into the model's latents and the Laplace evidence of each emotion level
+(bayesmotion.project; infer_emotion(..., emotion_starts="vertices"))."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import bayesmotion as bm
+from bayesmotion.clip import clip_poses
+from bayesmotion.infer import _largest_prior, _style_setup
+from bayesmotion.infer_density import clip_log_density
+from bayesmotion.predict import style_vectors
+from bayesmotion.project import (
+    _STATIC,
+    _init_latents,
+    _neg_hessian,
+    banded_hessian,
+    laplace_log_evidence,
+)
+
+from .conftest import make_tiny_dataset
+
+
+@pytest.fixture(scope="module")
+def tiny_data():
+    return make_tiny_dataset()
+
+
+def _setup(model, trial, T, B):
+    """Arguments of the clip density for the first T frames of ``trial`` padded to B, with
+    latents from the nearest training frames and the emotion free."""
+    Ys = [np.asarray(Y)[:T] for Y in clip_poses(model, trial)]
+    fixed, conc, inferred = _style_setup(model, {}, None)
+    assert inferred == ["emotion"]
+    X0, I0, _ = _init_latents(model, Ys, B)
+    params = {"X": jnp.asarray(X0), "I": jnp.asarray(I0),
+              "u:emotion": jnp.asarray([0.3, -0.2][:len(conc["emotion"]) - 1])}
+    mask = jnp.asarray(np.arange(B) < T)
+    Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
+    P = model.predictor()
+    fixed = dict(zip(fixed, style_vectors(P, list(fixed), list(fixed.values())), strict=True))
+    args = (P, Yp, mask, {k: jnp.asarray(v) for k, v in fixed.items()},
+            {k: jnp.asarray(v) for k, v in conc.items()})
+    statics = {"int_factors": tuple(model.spec.interaction_factors),
+               "dyn_factors": tuple(model.spec.dynamics_factors),
+               "init_var": float(model.spec.priors.init_var)}
+    assert set(statics) == set(_STATIC)
+    return params, args, statics
+
+
+def test_chunked_hessian_matches_autodiff_and_padding_carries_nothing(tiny_model, tiny_data):
+    from jax.flatten_util import ravel_pytree
+
+    T, B = 8, 12  # the tiny trials have 9 frames; frames 0..11 in 5 residue classes
+    params, args, statics = _setup(tiny_model, tiny_data[0], T, B)
+    z0, unravel = ravel_pytree(params)
+    ref = jax.hessian(lambda z: -clip_log_density(args[0], unravel(z), *args[1:],
+                                                  **statics))(z0)
+    H = _neg_hessian(params, *args, **statics)  # 109 products: 2 chunks, the last one partial
+    assert H.shape == ref.shape
+    np.testing.assert_allclose(H, ref, rtol=1e-8, atol=1e-8 * float(jnp.abs(ref).max()))
+    # the banded reconstruction from (2 o + 1) L + 1 = 46 products gives the same matrix
+    Hb = banded_hessian(params, args, statics)
+    np.testing.assert_allclose(Hb, ref, rtol=1e-8, atol=1e-8 * float(jnp.abs(ref).max()))
+    # the padded frames' latents carry no density: their rows and columns are exactly zero
+    pad = {k: (jnp.zeros_like(v).at[..., T:, :].set(1.0) if k in ("X", "I")
+               else jnp.zeros_like(v)) for k, v in params.items()}
+    rows = np.asarray(ravel_pytree(pad)[0]) > 0
+    assert rows.sum() == (B - T) * (2 * 3 + 3) and H.shape == (B * 9 + 1,) * 2
+    assert np.all(np.asarray(H)[rows] == 0) and np.all(np.asarray(H)[:, rows] == 0)
+
+
+def test_laplace_evidence_does_not_depend_on_the_padding(tiny_model, tiny_data):
+    """The same clip and latents in a 16-frame and a 32-frame bucket: the same evidence (only
+    the real frames' latents are integrated), over d = T (A Q_X + Q_I) + K - 1 coordinates."""
+    T = 9
+    p16, a16, statics = _setup(tiny_model, tiny_data[1], T, 16)
+    p32, a32, _ = _setup(tiny_model, tiny_data[1], T, 32)
+    for k in ("X", "I"):
+        np.testing.assert_array_equal(np.asarray(p32[k])[..., :T, :],
+                                      np.asarray(p16[k])[..., :T, :])
+    e16, i16 = laplace_log_evidence(p16, a16, statics, T)
+    e32, i32 = laplace_log_evidence(p32, a32, statics, T)
+    K = len(tiny_model.levels["emotion"])
+    assert i16["dim"] == i32["dim"] == T * (2 * 3 + 3) + K - 1
+    assert np.isfinite(e16)
+    np.testing.assert_allclose(e32, e16, rtol=1e-9)
+    np.testing.assert_allclose(i32["logdet"], i16["logdet"], rtol=1e-9)
+    # evidence = log density + d/2 log 2 pi - logdet / 2
+    np.testing.assert_allclose(
+        e16, i16["log_density"] + 0.5 * i16["dim"] * np.log(2 * np.pi) - 0.5 * i16["logdet"])
+
+
+def test_vertices_chooses_each_training_trials_level(tiny_model, tiny_data):
+    """emotion_starts="vertices": one projection per level with the emotion held at its vertex;
+    the level of largest Laplace evidence is chosen, and the style sampler at its latents
+    agrees. On the model's own training trials that is the trial's label."""
+    K = len(tiny_model.levels["emotion"])
+    levels = list(tiny_model.levels["emotion"])
+    for label in levels:
+        trial = tiny_data[tiny_data.labels("emotion").index(label)]
+        ep = bm.infer_emotion(tiny_model, trial, n_steps=60, latent_uncertainty=False,
+                              emotion_starts="vertices")
+        info = ep.info
+        assert info["emotion_starts"] == "vertices"
+        assert len(info["level_log_evidence"]) == len(info["level_objectives"]) == K
+        p = np.asarray(info["level_probabilities"])
+        assert p.shape == (K,) and abs(p.sum() - 1) < 1e-12
+        assert levels[int(np.argmax(info["level_log_evidence"]))] == label
+        assert ep.label == label
+        # the chosen level's projection is then refined with the emotion free
+        assert np.isfinite(info["map_objective"]) and info["map_iterations"] >= 1
+        T = info["n_frames"]
+        assert all(d["dim"] == T * (2 * 3 + 3) for d in info["level_laplace"])
+
+
+def test_largest_prior():
+    np.testing.assert_array_equal(_largest_prior(np.ones(4)), np.full(4, 0.25))
+    p = _largest_prior(np.array([8.0, 1.0, 1.0]))
+    assert p.shape == (3,) and abs(p.sum() - 1) < 1e-12
+    assert p[0] > 0.95 and abs(p[1] - p[2]) < 0.01
+    draws = np.random.default_rng(1).dirichlet([2.0, 1.0], 200000)
+    np.testing.assert_allclose(_largest_prior(np.array([2.0, 1.0]))[0],
+                               np.mean(draws[:, 0] > 0.5), atol=0.01)
+
+
+def test_vertices_rejects_unknown_mode(tiny_model, tiny_data):
+    with pytest.raises(bm.BayesmotionError, match="'vertices'"):
+        bm.infer_emotion(tiny_model, tiny_data[0], emotion_starts="vertex")
