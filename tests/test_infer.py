@@ -447,6 +447,33 @@ def test_tempered_hpd_levels_match_direct_sampling_of_a_dirichlet():
     assert np.all((h >= 0) & (h <= 1))
 
 
+def test_tempered_hpd_levels_refuse_posteriors_sharper_than_the_points():
+    """A likelihood peaked 0.003 from a vertex, 50 nats above it (the built-in handshakes'
+    shape): at large powers the tempered posterior is far narrower than the uniform points'
+    spacing and the importance-sampled level would read 0 (covered); it is NaN instead, so no
+    calibration can pick such a power. Wide posteriors keep their finite levels."""
+    from bayesmotion.evaluate import (
+        calibrate_hpd_power,
+        tempered_hpd_levels,
+        uniform_simplex_points,
+    )
+
+    U = uniform_simplex_points(4, 8192, seed=0)
+    mode = np.array([0.997, 0.001, 0.001, 0.001])
+    ll = lambda S: -50.0 * np.sum((S - mode) ** 2, -1) / 1.2e-5  # 50 nats at the vertex
+    truth = np.eye(4)[0]
+    drop = ll(mode[None])[0] - ll(truth[None])[0]
+    assert abs(drop - 50) < 1e-6
+    etas = np.array([1e-7, 1e-6, 1.0, 100.0])
+    h = tempered_hpd_levels(ll(U)[None], ll(truth[None]), etas)[:, 0]
+    assert np.isfinite(h[0]) and np.isfinite(h[1])
+    assert np.isnan(h[2]) and np.isnan(h[3])
+    # the old estimate (no effective-sample-size check) called the truth covered at eta = 100
+    assert tempered_hpd_levels(ll(U)[None], ll(truth[None]), etas, min_ess=0)[3, 0] <= 0.9
+    cal = calibrate_hpd_power(np.tile(ll(U), (3, 1)), np.repeat(ll(truth[None]), 3), 0.9)
+    assert cal < 1.0
+
+
 def test_hpd_power_calibration_recovers_an_overconfidence_factor():
     """Clip likelihoods c times too sharp (truths drawn from Dirichlet(a_j), likelihood
     c sum (a_j - 1) log s): the calibrated power is about 1/c, and the regions it gives hold

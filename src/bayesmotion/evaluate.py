@@ -105,7 +105,7 @@ _ETA_GRID = np.logspace(-8, 2, 401)
 
 
 def tempered_hpd_levels(loglik_points, loglik_truth, etas, log_prior_points=0.0,
-                        log_prior_truth=0.0) -> np.ndarray:
+                        log_prior_truth=0.0, min_ess: float = 100.0) -> np.ndarray:
     """The smallest highest-density level that holds the truth, for each clip and power.
 
     For clip j with log-likelihood l_j over the emotion simplex and prior p, the posterior
@@ -114,14 +114,18 @@ def tempered_hpd_levels(loglik_points, loglik_truth, etas, log_prior_points=0.0,
     h is integrated by self-normalised importance sampling from points uniform on the simplex
     (:func:`uniform_simplex_points`), exact as the points grow; accurate while the tempered
     posterior is wide against their spacing, which is the regime where regions can hold a
-    vertex.
+    vertex. Where it is not -- the importance weights' effective sample size below ``min_ess``
+    -- the level is NaN (unknown, never counted as covering): a posterior sharper than the
+    points' spacing puts its weight on one or two points, and the estimate then says 0 (truth
+    covered) whenever the truth beats them. On the built-in handshakes that made a power of 100
+    look calibrated while its regions covered no truth.
 
     Args:
         loglik_points: (n_clips, M) l_j at the M points. loglik_truth: (n_clips,) l_j(t_j).
         etas: (E,) powers. log_prior_points: (M,) log p at the points (0: flat).
         log_prior_truth: (n_clips,) log p(t_j).
     Returns:
-        (E, n_clips) h_j(eta).
+        (E, n_clips) h_j(eta), NaN where the importance sampling is unreliable.
     """
     L = np.asarray(loglik_points, dtype=np.float64)
     lt = np.asarray(loglik_truth, dtype=np.float64)
@@ -131,7 +135,9 @@ def tempered_hpd_levels(loglik_points, loglik_truth, etas, log_prior_points=0.0,
     for e, eta in enumerate(np.asarray(etas, dtype=np.float64)):
         logd = eta * L + lp  # tempered log density at the points (the proposal is uniform)
         w = np.exp(logd - logd.max(1, keepdims=True))
-        out[e] = np.sum(w * (logd >= (eta * lt + lpt)[:, None]), 1) / w.sum(1)
+        h = np.sum(w * (logd >= (eta * lt + lpt)[:, None]), 1) / w.sum(1)
+        ess = w.sum(1) ** 2 / np.sum(w**2, 1)
+        out[e] = np.where(ess >= min_ess, h, np.nan)
     return out
 
 
@@ -162,7 +168,7 @@ def hpd_power_from_levels(levels, q: float = 0.9, etas=None) -> float:
     """:func:`calibrate_hpd_power` from precomputed levels (E, n_clips) on the grid ``etas``
     (cross-fitting drops columns instead of recomputing them)."""
     etas = _ETA_GRID if etas is None else np.asarray(etas, dtype=np.float64)
-    cover = np.mean(np.asarray(levels) <= q, axis=1)
+    cover = np.mean(np.asarray(levels) <= q, axis=1)  # NaN (unreliable) never covers
     ok = etas[cover >= q]
     if ok.size == 0:
         raise BayesmotionError(f"no likelihood power in [{etas[0]:.2g}, {etas[-1]:.2g}] makes "
