@@ -38,7 +38,7 @@ def test_rbf_second_derivatives_exact_where_inputs_coincide(rng):
     rounding-negative squared distances must not zero it."""
     B = rng.normal(size=(5, 3)) * 3.0
     for j in range(5):
-        H = jax.hessian(lambda a: kernels.rbf(a[None], B, 1.7, 0.6)[0, j])(jnp.asarray(B[j]))
+        H = jax.hessian(lambda a, j=j: kernels.rbf(a[None], B, 1.7, 0.6)[0, j])(jnp.asarray(B[j]))
         np.testing.assert_allclose(H, -1.7 * 0.6 * np.eye(3), rtol=1e-10, atol=1e-12)
     D = np.asarray(kernels.sqdist(B, B))
     assert np.all(D >= 0) and np.all(np.diag(D) < 1e-12 * np.sum(B**2, 1))

@@ -6,7 +6,9 @@
    (L-BFGS) of the clip's predictive log-density (bayesmotion.infer_density) with the model
    fixed, starting from the latents of the nearest training frames and the prior-mean style
    (when the couple is inferred: one start per couple level, the best optimum kept; with
-   ``emotion_starts="levels"`` also one start per emotion level).
+   ``emotion_starts="levels"`` also one start per emotion level; with "vertices" one
+   projection per emotion level, the level chosen by its Laplace evidence, see
+   bayesmotion.project). L-BFGS runs in coordinates scaled by the exact Hessian diagonal.
    Latent uncertainty: a diagonal Laplace approximation (Hutchinson estimate of diag H).
 3. Style posterior: emcee samples the clip's emotion coordinates (and its couple style when not
    given) on the simplex, with the latents held at their MAP -- i.e. the conditional posterior
@@ -394,12 +396,17 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             allow for model misspecification: with many frames the plain posterior is often
             narrower than the distance from its mean to the true label. Choose eta from labelled
             data with :func:`bayesmotion.evaluate.calibrate_hpd_power`.
-        emotion_starts: "nearest" (one projection from the nearest training frames) or
+        emotion_starts: "nearest" (one projection from the nearest training frames),
             "levels" (that start plus one per emotion level, from the nearest frames of that
             level's training trials; the best optimum is kept; K + 1 times the projection's
-            cost). A better optimum is not always the right label: on the built-in handshakes
-            "levels" read two sad trials as neutral (91.7% against 100%), on the Bandai walks
-            it raised leave-one-clip-out accuracy from 43.8% to 56.2%.
+            cost) or "vertices" (one projection per level with the emotion held at that
+            level; the level of largest Laplace evidence of the latents is chosen
+            (bayesmotion.project) and its latents and free emotion are refined together;
+            about K + 1 projections plus K Hessians). A better joint optimum is not always the
+            right label: on the built-in handshakes "levels" read two sad trials as neutral
+            (91.7%, session 13); "vertices" compares every level at its own optimum.
+            ``info`` then holds ``level_log_evidence``, ``level_probabilities`` and the
+            Laplace details per level.
     Returns:
         EmotionPosterior.
     """
