@@ -101,16 +101,20 @@ def _starts(model, Ys, B, inferred, conc, mode: str) -> list[dict]:
     groups = [None]
     if mode == "levels" and "emotion" in model.data.onehot:
         groups += [g for g in _level_rows(model) if g is not None]
-    out = []
-    for rows in groups:
-        X0, I0, nearest = _init_latents(model, Ys, B, rows)
-        params = {"X": jnp.asarray(X0), "I": jnp.asarray(I0)}
-        for f in inferred:
-            start = (_style_start(model, f, conc[f], nearest) if f in model.data.onehot
-                     else conc[f] / conc[f].sum())
-            params["u:" + f] = simplex_to_style(jnp.asarray(start)[None])[0]
-        out.append(params)
-    return out
+    return [_start_params(model, Ys, B, rows, inferred, conc) for rows in groups]
+
+
+def _start_params(model, Ys, B, rows, factors, conc) -> dict:
+    """Latents of the nearest training frames among ``rows`` and each free style in
+    ``factors`` near the level most of those frames have (the prior mean for an unlabelled
+    factor)."""
+    X0, I0, nearest = _init_latents(model, Ys, B, rows)
+    params = {"X": jnp.asarray(X0), "I": jnp.asarray(I0)}
+    for f in factors:
+        start = (_style_start(model, f, conc[f], nearest) if f in model.data.onehot
+                 else conc[f] / conc[f].sum())
+        params["u:" + f] = simplex_to_style(jnp.asarray(start)[None])[0]
+    return params
 
 
 def _style_start(model, factor: str, conc, nearest) -> np.ndarray:
@@ -352,12 +356,7 @@ def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc):
     conc_o = {f: conc[f] for f in others}
     out = []
     for k, rows in enumerate(_level_rows(model)):
-        X0, I0, nearest = _init_latents(model, Ys, B, rows)
-        params = {"X": jnp.asarray(X0), "I": jnp.asarray(I0)}
-        for f in others:
-            start = (_style_start(model, f, conc[f], nearest) if f in model.data.onehot
-                     else conc[f] / conc[f].sum())
-            params["u:" + f] = simplex_to_style(jnp.asarray(start)[None])[0]
+        params = _start_params(model, Ys, B, rows, others, conc)
         fixed_k = {**fixed_j, "emotion": jnp.asarray(Pm.level_vectors["emotion"][k])}
         args_k = (Pm, Yp, mask, fixed_k, {f: conc_j[f] for f in others})
         p, res = _project(params, args_k, statics, max_iter, others, conc_o)
