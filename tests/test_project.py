@@ -16,6 +16,7 @@ from bayesmotion.project import (
     _init_latents,
     _neg_hessian,
     banded_hessian,
+    diag_hessian,
     laplace_log_evidence,
 )
 
@@ -69,6 +70,11 @@ def test_chunked_hessian_matches_differences_and_padding_carries_nothing(tiny_mo
     # the banded reconstruction from (2 o + 1) L + 1 = 46 products gives the same matrix
     Hb = banded_hessian(params, args, statics)
     np.testing.assert_allclose(Hb, H, rtol=1e-10, atol=1e-10 * scale)
+    # the exact diagonal from 3 L + 1 = 28 coloured products (the projection's scaling and the
+    # latents' Laplace sd)
+    D = diag_hessian(params, args, statics)
+    np.testing.assert_allclose(np.asarray(ravel_pytree(D)[0]), np.diag(H), rtol=1e-10,
+                               atol=1e-10 * scale)
     # the padded frames' latents carry no density: their rows and columns are exactly zero
     pad = {k: (jnp.zeros_like(v).at[..., T:, :].set(1.0) if k in ("X", "I")
                else jnp.zeros_like(v)) for k, v in params.items()}

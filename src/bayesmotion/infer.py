@@ -9,7 +9,7 @@
    ``emotion_starts="levels"`` also one start per emotion level; with "vertices" one
    projection per emotion level, the level chosen by its Laplace evidence, see
    bayesmotion.project). L-BFGS runs in coordinates scaled by the exact Hessian diagonal.
-   Latent uncertainty: a diagonal Laplace approximation (Hutchinson estimate of diag H).
+   Latent uncertainty: a diagonal Laplace approximation (exact diag H, coloured HVPs).
 3. Style posterior: emcee samples the clip's emotion coordinates (and its couple style when not
    given) on the simplex, with the latents held at their MAP -- i.e. the conditional posterior
    p(s* | Y*, X*, I*) proportional to p(s*) p(X* | I*, s*) p(I* | s*) (interaction and dynamics
@@ -46,10 +46,10 @@ from .project import (  # noqa: F401  (_init_latents, _starts: used by the tests
     _STATIC,
     _bucket,
     _init_latents,
-    _latent_diag_hessian,
     _lbfgs,
     _project,
     _starts,
+    diag_hessian,
     project_levels,
 )
 
@@ -491,15 +491,9 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     latents = {"X": params["X"], "I": params["I"]}
     sd = {}
     if latent_uncertainty:
-        # Rademacher probes from NumPy (jax.random.rademacher took 4-6 s to compile here)
-        prng = np.random.default_rng(seed)
-        probes = jax.tree_util.tree_map(
-            lambda x: jnp.asarray(prng.choice([-1.0, 1.0], size=(16,) + x.shape), x.dtype),
-            latents)
-        diag = _latent_diag_hessian(params, probes, *args, **statics)
-        sd = {f"{k}_sd": np.asarray(1.0 / jnp.sqrt(jnp.maximum(v, 1e-12)))[..., :T, :]
-              if k == "X" else np.asarray(1.0 / jnp.sqrt(jnp.maximum(v, 1e-12)))[:T]
-              for k, v in diag.items()}
+        diag = diag_hessian(params, args, statics)  # exact, from coloured HVPs
+        sd = {f"{k}_sd": np.asarray(1.0 / jnp.sqrt(jnp.maximum(diag[k], 1e-12)))[..., :T, :]
+              for k in ("X", "I")}
     stage("latent_sd")
     free = tuple((f, len(model.levels[f])) for f in sorted(inferred))
     keys = tuple(("u:" + f, K - 1) for f, K in free)

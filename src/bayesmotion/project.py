@@ -51,24 +51,6 @@ def _neg_value_and_grad(params, P, Ys, mask, fixed, conc, int_factors, dyn_facto
     return jax.value_and_grad(f)(params)
 
 
-@partial(jax.jit, static_argnames=_STATIC)
-def _latent_diag_hessian(params, probes, P, Ys, mask, fixed, conc, int_factors, dyn_factors,
-                         init_var):
-    """Hutchinson estimate of diag(H) of -log p over the latents X, I."""
-    lat = {"X": params["X"], "I": params["I"]}
-    rest = {k: v for k, v in params.items() if k not in lat}
-    f = lambda l: -clip_log_density(P, {**rest, **l}, Ys, mask, fixed, conc, int_factors,
-                                    dyn_factors, init_var)
-    grad = jax.grad(f)
-
-    def one(v):
-        hv = jax.jvp(grad, (lat,), (v,))[1]
-        return jax.tree_util.tree_map(lambda a, b: a * b, v, hv)
-
-    return jax.tree_util.tree_map(lambda x: jnp.mean(x, 0), jax.vmap(one)(probes))
-
-
-
 def _init_latents(model, Ys, B, rows=None):
     """Latents of the nearest training frame (in pose space) for every clip frame, among the
     training frames ``rows`` (default all)."""
@@ -147,8 +129,7 @@ def _lbfgs(params, args, statics, max_iter, round_iter: int = ROUND_ITER):
     V = jnp.asarray(_diag_probes(params, args[0].dyn_lags.shape[0] + 1))
     done, res = 0, None
     while done < max_iter:
-        hv = np.asarray(_hvps(unravel(jnp.asarray(x)), V, *args, **statics))
-        a = np.abs(np.sum(np.asarray(V) * hv, 0))
+        a = np.abs(_diag_flat(unravel(jnp.asarray(x)), V, args, statics))
         top = a.max() if a.size and a.max() > 0 else 1.0
         scale = np.where(a > 0, 1.0 / np.sqrt(np.maximum(a, 1e-6 * top)), 1.0)
 
@@ -170,6 +151,19 @@ def _lbfgs(params, args, statics, max_iter, round_iter: int = ROUND_ITER):
             break
     res.x, res.nit = x, done
     return unravel(jnp.asarray(x)), res
+
+
+def _diag_flat(params, V, args, statics) -> np.ndarray:
+    """Exact diag of the Hessian of -log p over ``params`` (flat), from the probes ``V`` of
+    :func:`_diag_probes`."""
+    return np.sum(np.asarray(V) * np.asarray(_hvps(params, V, *args, **statics)), 0)
+
+
+def diag_hessian(params, args, statics) -> dict:
+    """Exact diagonal of the Hessian of -log p over ``params``, shaped like ``params``, from
+    3 (A Q_X + Q_I) + n_style Hessian-vector products (:func:`_diag_probes`)."""
+    V = jnp.asarray(_diag_probes(params, args[0].dyn_lags.shape[0] + 1))
+    return ravel_pytree(params)[1](jnp.asarray(_diag_flat(params, V, args, statics)))
 
 
 def _diag_probes(params, period: int) -> np.ndarray:
