@@ -13,8 +13,8 @@ from bayesmotion.infer_density import clip_log_density
 from bayesmotion.predict import style_vectors
 from bayesmotion.project import (
     _STATIC,
+    _hvps,
     _init_latents,
-    _neg_hessian,
     banded_hessian,
     diag_hessian,
     laplace_log_evidence,
@@ -26,6 +26,14 @@ from .conftest import make_tiny_dataset
 @pytest.fixture(scope="module")
 def tiny_data():
     return make_tiny_dataset()
+
+
+def _neg_hessian(params, *args, **statics):
+    """Dense Hessian of -log p from d products with the identity (the reference)."""
+    from jax.flatten_util import ravel_pytree
+
+    d = ravel_pytree(params)[0].size
+    return _hvps(params, jnp.eye(d), *args, **statics)
 
 
 def _setup(model, trial, T, B):

@@ -232,13 +232,6 @@ def _hvps(params, V, P, Ys, mask, fixed, conc, int_factors, dyn_factors, init_va
     return jax.lax.map(jax.vmap(hvp), V.reshape(-1, HVP_CHUNK, d)).reshape(m, d)[:n]
 
 
-def _neg_hessian(params, P, Ys, mask, fixed, conc, int_factors, dyn_factors, init_var):
-    """Dense Hessian of -log p over every entry of ``params`` (ravel_pytree order)."""
-    d = ravel_pytree(params)[0].size
-    return _hvps(params, jnp.eye(d), P, Ys, mask, fixed, conc, int_factors=int_factors,
-                 dyn_factors=dyn_factors, init_var=init_var)
-
-
 def _frame_layout(params):
     """Per flat coordinate (ravel_pytree order): its frame (-1 for a style coordinate) and its
     index within the frame (I first, then each actor's X; -1 for a style)."""
