@@ -447,6 +447,47 @@ def test_tempered_hpd_levels_match_direct_sampling_of_a_dirichlet():
     assert np.all((h >= 0) & (h <= 1))
 
 
+def test_tempering_proposal_resolves_posteriors_the_uniform_points_cannot():
+    """A tempered Dirichlet far sharper than the uniform points' spacing (the plain posteriors
+    of the built-in handshakes are ~5e-4 wide): uniform points give NaN (ESS too small), the
+    ladder proposal around the posterior mean gives the level that direct sampling gives, and
+    still agrees with the uniform points on a wide posterior."""
+    from scipy.stats import dirichlet
+
+    from bayesmotion.evaluate import (
+        tempered_hpd_levels,
+        tempering_proposal,
+        uniform_simplex_points,
+    )
+
+    rng = np.random.default_rng(4)
+    a = np.array([20000.0, 8.0, 15.0, 30.0])
+    ll = lambda S: np.log(np.clip(S, 1e-300, None)) @ (a - 1)
+    mean = a / a.sum()
+    W, lq = tempering_proposal(mean, seed=5)
+    assert W.shape == (8192 + 10 * 2048, 4) and lq.shape == (len(W),)
+    np.testing.assert_allclose(W.sum(1), 1.0, atol=1e-12)
+    U = uniform_simplex_points(4, 8192, seed=0)
+    truths = np.array([mean, [0.9975, 0.0005, 0.0008, 0.0012], np.eye(4)[0]])
+    etas = np.array([0.01, 0.1, 1.0])
+    assert np.all(np.isnan(tempered_hpd_levels(np.tile(ll(U), (3, 1)), ll(truths), etas)[1:]))
+    h = tempered_hpd_levels(np.tile(ll(W), (3, 1)), ll(truths), etas, log_proposal_points=lq)
+    assert np.all(np.isfinite(h))
+    for e, eta in enumerate(etas):
+        alpha = 1 + eta * (a - 1)
+        S = rng.dirichlet(alpha, 200000)
+        for j, t in enumerate(truths):
+            ref = np.mean(dirichlet.logpdf(S.T, alpha) >= dirichlet.logpdf(t, alpha))
+            assert h[e, j] == pytest.approx(ref, abs=0.03), (eta, t, h[e, j], ref)
+    # a wide posterior: the same answer as the uniform points
+    wide = lambda S: np.log(S) @ (np.array([3.0, 2.0, 1.5, 1.2]) - 1)
+    t = np.array([[0.3, 0.3, 0.2, 0.2]])
+    U2 = uniform_simplex_points(4, 40000, seed=1)
+    h_u = tempered_hpd_levels(wide(U2)[None], wide(t), [1.0])[0, 0]
+    h_w = tempered_hpd_levels(wide(W)[None], wide(t), [1.0], log_proposal_points=lq)[0, 0]
+    assert h_w == pytest.approx(h_u, abs=0.02)
+
+
 def test_tempered_hpd_levels_refuse_posteriors_sharper_than_the_points():
     """A likelihood peaked 0.003 from a vertex, 50 nats above it (the built-in handshakes'
     shape): at large powers the tempered posterior is far narrower than the uniform points'
@@ -509,7 +550,8 @@ def test_hpd_power_calibration_recovers_an_overconfidence_factor():
     Ut = uniform_simplex_points(3, 2048, seed=3)
     runs = [(None, None, None, np.eye(3)[0],
              {"loglik_points": -50.0 * Ut[:, 0], "loglik_truth": -50.0, "log_prior_truth": 0.0,
-              "log_prior_points": np.zeros(len(Ut))}) for _ in range(4)]
+              "log_prior_points": np.zeros(len(Ut)),
+              "log_proposal_points": np.zeros(len(Ut))}) for _ in range(4)]
     out = _calibrated([{"truth_loglik_drop": 50.0}] * 4, runs, ["a", "b", "c"], q, 10, 0, {})
     assert "no likelihood power" in out["error"]
     assert out["reachable_hpd_coverage"] == 0.0
@@ -527,9 +569,10 @@ def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
 
     calls = []
 
-    def spy(L, lt, *args, **kwargs):
-        calls.append((np.array(L), np.array(lt)))
-        return levels(L, lt, *args, **kwargs)
+    def spy(L, lt, etas, lp, lpt, **kwargs):
+        calls.append((np.array(L), np.array(lt), np.array(lp), np.array(lpt),
+                      np.array(kwargs["log_proposal_points"])))
+        return levels(L, lt, etas, lp, lpt, **kwargs)
 
     levels = evaluate.tempered_hpd_levels
     evaluate.tempered_hpd_levels = spy
@@ -544,14 +587,19 @@ def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
     assert np.all(d2 >= 0)
     n = len(res["trials"])
     assert len(calls) == 1  # the levels of every clip, computed once
-    L_all, lt_all = calls[0]
-    assert L_all.shape[0] == n
+    L_all, lt_all, lp_all, lpt_all, lq_all = calls[0]
+    assert L_all.shape[0] == n and lq_all.shape == L_all.shape == lp_all.shape
+
+    def real_without(i):
+        keep = np.arange(n) != i
+        return real(L_all[keep], lt_all[keep], log_prior_points=lp_all[keep],
+                    log_prior_truth=lpt_all[keep], log_proposal_points=lq_all[keep])
+
     # the clip likelihood at the truth is at most its best value among the points and samples
     assert np.all(lt_all <= L_all.max(1) + d2 / 2 + 1e-9)
     for i, t in enumerate(res["trials"]):
         # cross-fitted: trial i's power is the one calibrated on the others alone
-        assert t["calibrated"]["likelihood_power"] == pytest.approx(
-            real(np.delete(L_all, i, 0), np.delete(lt_all, i)))
+        assert t["calibrated"]["likelihood_power"] == pytest.approx(real_without(i))
         assert t["calibrated"]["pred"] in res["levels"]
         assert isinstance(t["hpd_covered"], bool)
     assert res["hpd_coverage"] == pytest.approx(np.mean([t["hpd_covered"]
@@ -563,7 +611,9 @@ def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
                                                      for t in res["trials"]]))
     assert cal["accuracy"] == pytest.approx(np.mean([t["calibrated"]["pred"] == t["true"]
                                                      for t in res["trials"]]))
-    assert cal["likelihood_power_all_trials"] == real(L_all, lt_all)
+    assert cal["likelihood_power_all_trials"] == real(
+        L_all, lt_all, log_prior_points=lp_all, log_prior_truth=lpt_all,
+        log_proposal_points=lq_all)
     with pytest.raises(bm.BayesmotionError, match="likelihood_power"):
         leave_one_out(tiny_data, tiny_model, calibrate=True,
                       infer_kwargs={"likelihood_power": 0.5})

@@ -96,45 +96,90 @@ def calibrate_likelihood_power(result_or_distances, q: float = 0.9, dim: int | N
 
 
 def uniform_simplex_points(K: int, n: int = 8192, seed: int = 0) -> np.ndarray:
-    """(n, K) points drawn uniformly on the simplex (Dirichlet(1)): the proposal with which
-    :func:`tempered_hpd_levels` integrates a tempered emotion posterior."""
+    """(n, K) points drawn uniformly on the simplex (Dirichlet(1)): the flat part of the
+    proposal with which :func:`tempered_hpd_levels` integrates a tempered emotion posterior."""
     return np.random.default_rng(seed).dirichlet(np.ones(K), size=n)
+
+
+# total concentrations of the Dirichlet ladder around a clip's posterior mean: from nearly flat
+# to sharper than the plain posteriors of the built-in handshakes (interval widths ~5e-4)
+_LADDER = (10.0, 30.0, 100.0, 300.0, 1e3, 3e3, 1e4, 3e4, 1e5, 3e5)
+
+
+def _log_dirichlet(W, alpha) -> np.ndarray:
+    from scipy.special import gammaln
+
+    W = np.clip(W, 1e-300, None)
+    return (np.sum((alpha - 1.0) * np.log(W), -1) + gammaln(alpha.sum()) - gammaln(alpha).sum())
+
+
+def tempering_proposal(center, n_uniform: int = 8192, n_per_rung: int = 2048,
+                       ladder=_LADDER, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the simplex and their proposal log-density, for :func:`tempered_hpd_levels`.
+
+    A deterministic mixture (each point's density is the mixture's, Veach's balance heuristic):
+    ``n_uniform`` uniform points, plus ``n_per_rung`` from Dirichlet(1 + c * center) for each
+    total concentration c of ``ladder``. Uniform points alone cannot resolve a posterior tempered
+    by a power at which it is still much narrower than the simplex (the importance weights' ESS
+    collapses, and :func:`tempered_hpd_levels` answers NaN); the ladder puts points at every
+    scale between the prior and the plain posterior around its mean.
+
+    Returns:
+        (M, K) points and (M,) log proposal density at them.
+    """
+    c = np.clip(np.asarray(center, dtype=np.float64), 1e-12, None)
+    c = c / c.sum()
+    K = c.size
+    rng = np.random.default_rng(seed)
+    alphas = [np.ones(K)] + [1.0 + a * c for a in ladder]
+    counts = [n_uniform] + [n_per_rung] * len(ladder)
+    W = np.concatenate([rng.dirichlet(a, size=n) for a, n in zip(alphas, counts, strict=True)])
+    W = np.clip(W, 1e-300, None)
+    W = W / W.sum(1, keepdims=True)
+    parts = np.stack([_log_dirichlet(W, a) + np.log(n / len(W))
+                      for a, n in zip(alphas, counts, strict=True)])
+    return W, np.logaddexp.reduce(parts, axis=0)
 
 
 _ETA_GRID = np.logspace(-8, 2, 401)
 
 
 def tempered_hpd_levels(loglik_points, loglik_truth, etas, log_prior_points=0.0,
-                        log_prior_truth=0.0, min_ess: float = 100.0) -> np.ndarray:
+                        log_prior_truth=0.0, min_ess: float = 100.0,
+                        log_proposal_points=0.0) -> np.ndarray:
     """The smallest highest-density level that holds the truth, for each clip and power.
 
     For clip j with log-likelihood l_j over the emotion simplex and prior p, the posterior
     tempered by eta has density p(s) exp(eta l_j(s)) / Z; the truth t lies in its ``q``
     highest-density region iff h_j(eta) = P(p(S) e^{eta l_j(S)} >= p(t) e^{eta l_j(t)}) <= q.
-    h is integrated by self-normalised importance sampling from points uniform on the simplex
-    (:func:`uniform_simplex_points`), exact as the points grow; accurate while the tempered
-    posterior is wide against their spacing, which is the regime where regions can hold a
-    vertex. Where it is not -- the importance weights' effective sample size below ``min_ess``
-    -- the level is NaN (unknown, never counted as covering): a posterior sharper than the
-    points' spacing puts its weight on one or two points, and the estimate then says 0 (truth
-    covered) whenever the truth beats them. On the built-in handshakes that made a power of 100
-    look calibrated while its regions covered no truth.
+    h is integrated by self-normalised importance sampling from points on the simplex, exact as
+    the points grow: uniform points (:func:`uniform_simplex_points`, ``log_proposal_points`` 0)
+    or any proposal whose log-density is given (:func:`tempering_proposal`). Where the estimate
+    is unreliable -- the importance weights' effective sample size below ``min_ess`` -- the
+    level is NaN (unknown, never counted as covering): a posterior sharper than the points'
+    spacing puts its weight on one or two points, and the estimate then says 0 (truth covered)
+    whenever the truth beats them. On the built-in handshakes that made a power of 100 look
+    calibrated while its regions covered no truth.
 
     Args:
         loglik_points: (n_clips, M) l_j at the M points. loglik_truth: (n_clips,) l_j(t_j).
-        etas: (E,) powers. log_prior_points: (M,) log p at the points (0: flat).
+        etas: (E,) powers. log_prior_points: (M,) or (n_clips, M) log p at the points (0: flat).
         log_prior_truth: (n_clips,) log p(t_j).
+        log_proposal_points: (M,) or (n_clips, M) log-density of the proposal that drew the
+            points (0: uniform, up to a constant).
     Returns:
         (E, n_clips) h_j(eta), NaN where the importance sampling is unreliable.
     """
     L = np.asarray(loglik_points, dtype=np.float64)
     lt = np.asarray(loglik_truth, dtype=np.float64)
-    lp = np.broadcast_to(np.asarray(log_prior_points, dtype=np.float64), L.shape[1:])
+    lp = np.broadcast_to(np.asarray(log_prior_points, dtype=np.float64), L.shape)
+    lq = np.broadcast_to(np.asarray(log_proposal_points, dtype=np.float64), L.shape)
     lpt = np.broadcast_to(np.asarray(log_prior_truth, dtype=np.float64), lt.shape)
     out = np.empty((len(etas), L.shape[0]))
     for e, eta in enumerate(np.asarray(etas, dtype=np.float64)):
-        logd = eta * L + lp  # tempered log density at the points (the proposal is uniform)
-        w = np.exp(logd - logd.max(1, keepdims=True))
+        logd = eta * L + lp  # tempered log density at the points
+        logw = logd - lq
+        w = np.exp(logw - logw.max(1, keepdims=True))
         h = np.sum(w * (logd >= (eta * lt + lpt)[:, None]), 1) / w.sum(1)
         ess = w.sum(1) ** 2 / np.sum(w**2, 1)
         out[e] = np.where(ess >= min_ess, h, np.nan)
@@ -142,12 +187,13 @@ def tempered_hpd_levels(loglik_points, loglik_truth, etas, log_prior_points=0.0,
 
 
 def calibrate_hpd_power(loglik_points, loglik_truth, q: float = 0.9, log_prior_points=0.0,
-                        log_prior_truth=0.0, etas=None) -> float:
+                        log_prior_truth=0.0, etas=None, log_proposal_points=0.0) -> float:
     """The largest likelihood power whose tempered ``q`` highest-density regions hold the truth
     for at least a fraction ``q`` of the clips, their levels computed by
     :func:`tempered_hpd_levels` (no chi-square approximation: the simplex's faces, where the
     regions of nearly flat posteriors are cut off, are accounted for). The largest such power
-    is the most informative posterior with that coverage.
+    is the most informative posterior with that coverage. ``log_proposal_points``: as in
+    :func:`tempered_hpd_levels` (0 for uniform points).
 
     Raises:
         BayesmotionError: no power on the grid (default 1e-8..100, log-spaced) reaches the
@@ -161,7 +207,9 @@ def calibrate_hpd_power(loglik_points, loglik_truth, q: float = 0.9, log_prior_p
                                "log-likelihoods")
     etas = _ETA_GRID if etas is None else np.sort(np.asarray(etas, dtype=np.float64))
     return hpd_power_from_levels(tempered_hpd_levels(L, loglik_truth, etas, log_prior_points,
-                                                     log_prior_truth), q, etas)
+                                                     log_prior_truth,
+                                                     log_proposal_points=log_proposal_points),
+                                 q, etas)
 
 
 def hpd_power_from_levels(levels, q: float = 0.9, etas=None) -> float:
@@ -193,10 +241,10 @@ def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
     hpd = all(r["truth_loglik_drop"] is not None for r in rows)
     d2 = np.array([2 * r["truth_loglik_drop"] if hpd else r["truth_mahalanobis2"] for r in rows])
     if hpd:  # the regions' exact levels (importance sampling on the simplex), not chi-square
-        L, lt, lpt, lp = (np.array([run[4][k] for run in runs])
-                          for k in ("loglik_points", "loglik_truth", "log_prior_truth",
-                                    "log_prior_points"))
-        H = tempered_hpd_levels(L, lt, _ETA_GRID, lp[0], lpt)
+        L, lt, lpt, lp, lq = (np.array([run[4][k] for run in runs])
+                              for k in ("loglik_points", "loglik_truth", "log_prior_truth",
+                                        "log_prior_points", "log_proposal_points"))
+        H = tempered_hpd_levels(L, lt, _ETA_GRID, lp, lpt, log_proposal_points=lq)
         # with a flat prior the levels only grow with eta (tempering moves mass onto the
         # likelihood's superlevel sets): the flattest posterior covers the most
         reachable = float(np.max(np.mean(H <= q, axis=1)))
@@ -319,7 +367,6 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         full_model = spec.fit(dataset, progress=progress, seed=seed, **fit_kwargs)
     levels = list(dataset.levels["emotion"])
     rows, runs = [], []
-    U = uniform_simplex_points(len(levels), seed=seed)  # shared by every fold's calibration
     for i, (train, held) in enumerate(dataset.leave_one_out()):
         keep = [r for r in range(len(dataset)) if r != i]
         fold = spec.fit(train, max_iter=refit_iter, progress=False, seed=seed,
@@ -333,7 +380,9 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         if calibrate:
             dens_at = None
             if dens:  # the clip's likelihood over the simplex, for the regions' exact levels
+                U, lq = tempering_proposal(ep.mean, seed=seed)
                 dens_at = {"loglik_points": np.asarray(ep.log_likelihood(U)),
+                           "log_proposal_points": lq,
                            "loglik_truth": float(np.asarray(ep.log_likelihood(truth[None]))[0]),
                            "log_prior_truth": float(ep._tempered(np.zeros(1), truth[None])[0]),
                            "log_prior_points": np.asarray(ep._tempered(np.zeros(len(U)), U))}
