@@ -423,11 +423,24 @@ def test_calibrated_power_covers_overconfident_gaussian_posteriors():
         calibrate_likelihood_power([1.0, np.nan], 0.9, 3)
 
 
+def _assert_dirichlet_levels(h, a, truths, etas, rng, tol):
+    """h[e, j] against direct sampling: with l(s) = sum (a_k - 1) log s_k and a flat prior, the
+    posterior tempered by eta is Dirichlet(1 + eta (a - 1)), and the level of truth j is its
+    mass above the truth's density."""
+    from scipy.stats import dirichlet
+
+    for e, eta in enumerate(etas):
+        alpha = 1 + eta * (a - 1)
+        S = rng.dirichlet(alpha, 200000)
+        for j, t in enumerate(truths):
+            ref = np.mean(dirichlet.logpdf(S.T, alpha) >= dirichlet.logpdf(t, alpha))
+            assert h[e, j] == pytest.approx(ref, abs=tol), (eta, t, h[e, j], ref)
+
+
 def test_tempered_hpd_levels_match_direct_sampling_of_a_dirichlet():
     """With l(s) = sum (a_k - 1) log s_k and a flat prior, the posterior tempered by eta is
     Dirichlet(1 + eta (a - 1)): the importance-sampled level of a point equals the mass of that
     Dirichlet above the point's density, estimated here by sampling it directly."""
-    from scipy.stats import dirichlet
 
     from bayesmotion.evaluate import tempered_hpd_levels, uniform_simplex_points
 
@@ -438,12 +451,7 @@ def test_tempered_hpd_levels_match_direct_sampling_of_a_dirichlet():
     truths = np.array([[0.4, 0.2, 0.1, 0.3], [0.2, 0.5, 0.2, 0.1], [0.05, 0.05, 0.6, 0.3]])
     etas = np.array([0.05, 0.3, 1.0])
     h = tempered_hpd_levels(np.tile(ll(U), (3, 1)), ll(truths), etas)
-    for e, eta in enumerate(etas):
-        alpha = 1 + eta * (a - 1)
-        S = rng.dirichlet(alpha, 200000)
-        for j, t in enumerate(truths):
-            ref = np.mean(dirichlet.logpdf(S.T, alpha) >= dirichlet.logpdf(t, alpha))
-            assert h[e, j] == pytest.approx(ref, abs=0.015), (eta, t, h[e, j], ref)
+    _assert_dirichlet_levels(h, a, truths, etas, rng, 0.015)
     assert np.all((h >= 0) & (h <= 1))
 
 
@@ -452,7 +460,6 @@ def test_tempering_proposal_resolves_posteriors_the_uniform_points_cannot():
     of the built-in handshakes are ~5e-4 wide): uniform points give NaN (ESS too small), the
     ladder proposal around the posterior mean gives the level that direct sampling gives, and
     still agrees with the uniform points on a wide posterior."""
-    from scipy.stats import dirichlet
 
     from bayesmotion.evaluate import (
         tempered_hpd_levels,
@@ -473,12 +480,7 @@ def test_tempering_proposal_resolves_posteriors_the_uniform_points_cannot():
     assert np.all(np.isnan(tempered_hpd_levels(np.tile(ll(U), (3, 1)), ll(truths), etas)[1:]))
     h = tempered_hpd_levels(np.tile(ll(W), (3, 1)), ll(truths), etas, log_proposal_points=lq)
     assert np.all(np.isfinite(h))
-    for e, eta in enumerate(etas):
-        alpha = 1 + eta * (a - 1)
-        S = rng.dirichlet(alpha, 200000)
-        for j, t in enumerate(truths):
-            ref = np.mean(dirichlet.logpdf(S.T, alpha) >= dirichlet.logpdf(t, alpha))
-            assert h[e, j] == pytest.approx(ref, abs=0.03), (eta, t, h[e, j], ref)
+    _assert_dirichlet_levels(h, a, truths, etas, rng, 0.03)
     # a wide posterior: the same answer as the uniform points
     wide = lambda S: np.log(S) @ (np.array([3.0, 2.0, 1.5, 1.2]) - 1)
     t = np.array([[0.3, 0.3, 0.2, 0.2]])
