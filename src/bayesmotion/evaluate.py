@@ -96,8 +96,9 @@ def calibrate_likelihood_power(result_or_distances, q: float = 0.9, dim: int | N
 
 
 def uniform_simplex_points(K: int, n: int = 8192, seed: int = 0) -> np.ndarray:
-    """(n, K) points drawn uniformly on the simplex (Dirichlet(1)): the flat part of the
-    proposal with which :func:`tempered_hpd_levels` integrates a tempered emotion posterior."""
+    """(n, K) points drawn uniformly on the simplex (Dirichlet(1)): a proposal for
+    :func:`tempered_hpd_levels` (``log_proposal_points`` 0) when the tempered posteriors are
+    wide; :func:`tempering_proposal` adds points for sharp ones."""
     return np.random.default_rng(seed).dirichlet(np.ones(K), size=n)
 
 
