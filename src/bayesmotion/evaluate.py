@@ -131,10 +131,11 @@ def tempering_proposal(center, n_uniform: int = 8192, n_per_rung: int = 2048,
     c = np.clip(np.asarray(center, dtype=np.float64), 1e-12, None)
     c = c / c.sum()
     K = c.size
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng([seed, 1])  # the ladder's stream, apart from the flat points'
     alphas = [np.ones(K)] + [1.0 + a * c for a in ladder]
     counts = [n_uniform] + [n_per_rung] * len(ladder)
-    W = np.concatenate([rng.dirichlet(a, size=n) for a, n in zip(alphas, counts, strict=True)])
+    W = np.concatenate([uniform_simplex_points(K, n_uniform, seed)]
+                       + [rng.dirichlet(a, size=n_per_rung) for a in alphas[1:]])
     W = np.clip(W, 1e-300, None)
     W = W / W.sum(1, keepdims=True)
     parts = np.stack([_log_dirichlet(W, a) + np.log(n / len(W))
