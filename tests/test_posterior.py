@@ -244,3 +244,54 @@ def test_an_impossible_burn_is_refused_before_sampling(tiny_model, monkeypatch):
     monkeypatch.setattr("bayesmotion.posterior.Target", no_target)
     with pytest.raises(bm.BayesmotionError, match="burn must be in"):
         bm.sample_posterior(tiny_model, n_steps=100, burn=100, progress=False)
+
+
+def test_the_two_blocks_sum_to_the_joint_log_posterior(tiny_model):
+    """p(gamma | Y, X) p(beta, alpha, S | X, I): with the latents fixed every term of the joint
+    density belongs to exactly one block, at any point (not only at the MAP)."""
+    from bayesmotion.posterior import Target
+
+    joint = Target(tiny_model)
+    up, bot = Target(tiny_model, block="upper"), Target(tiny_model, block="bottom")
+    assert sorted(bot.names) == sorted(n for n in joint.names if n.startswith("log_gamma"))
+    assert sorted(up.names + bot.names) == sorted(joint.names)
+    iu = [joint.names.index(n) for n in up.names]
+    ib = [joint.names.index(n) for n in bot.names]
+    x = joint.x0 + 0.3 * np.random.default_rng(0).standard_normal((5, joint.ndim))
+    total = np.asarray(joint.logp_batch(jnp.asarray(x)))
+    parts = (np.asarray(up.logp_batch(jnp.asarray(x[:, iu])))
+             + np.asarray(bot.logp_batch(jnp.asarray(x[:, ib]))))
+    np.testing.assert_allclose(parts, total, rtol=1e-10)
+    # and the upper block does not see gamma at all
+    y = x.copy()
+    y[:, ib] += 1.0
+    assert not np.allclose(joint.logp_batch(jnp.asarray(y)), total)
+    with pytest.raises(bm.BayesmotionError, match="block must be"):
+        Target(tiny_model, block="top")
+
+
+def test_factorised_chain_holds_gamma_and_resumes_bit_for_bit(tiny_model, tmp_path):
+    kw = dict(n_steps=13, burn=1, thin=1, progress=False, seed=3, gamma_every=4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        whole = bm.sample_posterior(tiny_model, **kw)
+        h5 = tmp_path / "chain.h5"
+        bm.sample_posterior(tiny_model, **{**kw, "n_steps": 6}, backend=h5)
+        resumed = bm.sample_posterior(tiny_model, **kw, backend=h5)
+    np.testing.assert_array_equal(resumed.chains, whole.chains)
+    np.testing.assert_array_equal(resumed.log_prob, whole.log_prob)
+    t = whole.target
+    ib = [t.names.index(n) for n in t.names if n.startswith("log_gamma")]
+    g = whole.chains[..., ib]  # draws are output steps 1..12 (burn 1)
+    steps = np.arange(1, 13)
+    for s in range(3):  # gamma steps 0, 1, 2 cover output steps 1-3, 4-7, 8-11
+        same = (steps // 4) == s
+        assert np.all(g[:, same] == g[:, same][:, :1])
+    assert np.any(g[:, 3] != g[:, 2]), "gamma never moved between its updates"
+    # every stored log-density is the joint density of its draw
+    fresh = np.asarray(t.logp_batch(jnp.asarray(whole.chains[:, -1])))
+    np.testing.assert_allclose(whole.log_prob[:, -1], fresh, rtol=1e-9)
+    assert whole.info["factorised"] and whole.info["bottom_acceptance"].shape == (
+        whole.chains.shape[0],)
+    with pytest.raises(bm.BayesmotionError, match="gamma_every"):
+        bm.sample_posterior(tiny_model, n_steps=10, gamma_every=0, progress=False)

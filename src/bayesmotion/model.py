@@ -200,6 +200,9 @@ def constrained(params: dict) -> dict:
     return {k[4:]: jnp.exp(v) for k, v in params.items() if k.startswith("log_")}
 
 
+LAYERS = ("bottom", "interaction", "dynamics")
+
+
 class LogPosterior:
     """The joint log-posterior of eq. 12 as a pure function of the parameter dict.
 
@@ -233,22 +236,38 @@ class LogPosterior:
         tof = self.data.trial_of_frame
         return [S[f][tof] for f in factors]
 
-    def layer_terms(self, params: dict, jitter=0.0) -> dict[str, jnp.ndarray]:
-        """Each layer's log-likelihood and the log-prior, separately."""
+    def layer_terms(self, params: dict, jitter=0.0, which=LAYERS) -> dict[str, jnp.ndarray]:
+        """Each layer's log-likelihood and the log-prior, separately.
+
+        ``which`` names the layers to compute (the others are 0). The prior covers the
+        hyperparameters and style vectors present in ``params``: with the latents fixed the
+        posterior factorises into ``which=("bottom",)`` with ``log_gamma`` alone (the only
+        terms gamma enters) and ``which=("interaction", "dynamics")`` with the rest.
+        """
+        unknown = set(which) - set(LAYERS)
+        if unknown:
+            raise ValueError(f"unknown layers {sorted(unknown)}; expected some of {LAYERS}")
         params = {k: jnp.asarray(v) for k, v in params.items()}
         h = constrained(params)
         X, I = params["X"], params["I"]
         A = X.shape[0]
-        bottom = sum(layers.gplvm_loglik(X[a], jnp.asarray(self.data.Y[a]), h["gamma"], jitter)
-                     for a in range(A))
+        zero = jnp.zeros(())
+        bottom = inter = dyn = zero
+        if "bottom" in which:
+            bottom = sum(layers.gplvm_loglik(X[a], jnp.asarray(self.data.Y[a]), h["gamma"],
+                                             jitter) for a in range(A))
         Z = jnp.concatenate([X[a] for a in range(A)], axis=1)
         fi, fd = self.spec.interaction_factors, self.spec.dynamics_factors
-        if self.dense or self.int_blocks is None or not self._fixed(params, fi):
+        if "interaction" not in which:
+            pass
+        elif self.dense or self.int_blocks is None or not self._fixed(params, fi):
             S_int = self.frame_styles(params, fi)
             inter = layers.style_gplvm_loglik(I, Z, S_int, h["beta"], jitter)
         else:
             inter = layers.blocked_style_gplvm_loglik(I, Z, h["beta"], self.int_blocks, jitter)
-        if self.dense or self.dyn_blocks is None or not self._fixed(params, fd):
+        if "dynamics" not in which:
+            pass
+        elif self.dense or self.dyn_blocks is None or not self._fixed(params, fd):
             S_dyn = self.frame_styles(params, fd)
             dyn = layers.gpdm_loglik(I, S_dyn, h["alpha"], self.index, jitter,
                                      self.spec.priors.init_var)
@@ -259,8 +278,8 @@ class LogPosterior:
                  + log_prior_style(params, self.style_prior))
         return {"bottom": bottom, "interaction": inter, "dynamics": dyn, "prior": prior}
 
-    def __call__(self, params: dict, jitter=0.0) -> jnp.ndarray:
-        t = self.layer_terms(params, jitter)
+    def __call__(self, params: dict, jitter=0.0, which=LAYERS) -> jnp.ndarray:
+        t = self.layer_terms(params, jitter, which)
         total = t["bottom"] + t["interaction"] + t["dynamics"] + t["prior"]
         return jnp.where(jnp.isnan(total), -jnp.inf, total)
 

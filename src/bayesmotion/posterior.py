@@ -15,6 +15,9 @@ Held at their MAP values: the latents X and I. The target density, in unconstrai
 
 i.e. :class:`bayesmotion.model.LogPosterior` with the latents fixed. emcee receives it jitted
 and ``vmap``-ped over walkers (``vectorize=True``); NUTS (numpyro) gets the same potential.
+Only the first line and gamma's prior term depend on gamma, and they depend on nothing else that
+is sampled: the posterior is the product p(gamma | Y, X) p(beta, alpha, S | X, I), and by default
+emcee samples the two factors with separate ensembles (``factorise=True``).
 """
 
 from __future__ import annotations
@@ -29,11 +32,16 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from .errors import BayesmotionError
+from .model import LAYERS
 from .moves import StyleRotations, style_slices
 from .optim import map_optimize
 from .params import STYLE_PREFIX, simplex_to_style, style_to_simplex
 
 SAMPLED_HYPER = ("log_gamma", "log_beta", "log_alpha")
+# With the latents fixed the posterior factorises: p(gamma | Y, X) p(beta, alpha, S | X, I).
+# block -> the layers whose likelihood it needs. "bottom" samples BOTTOM_KEYS, "upper" the rest.
+BOTTOM_KEYS = ("log_gamma",)
+BLOCKS = {"bottom": ("bottom",), "upper": ("interaction", "dynamics")}
 
 
 class ChainTooShortWarning(UserWarning):
@@ -65,10 +73,17 @@ class Target:
     complete parameter dict with the fixed latents).
     """
 
-    def __init__(self, model, jitter: float | None = None):
+    def __init__(self, model, jitter: float | None = None, block: str | None = None):
         self.model = model
+        self.block = block
         self.jitter = model.diagnostics.get("jitter", 1e-8) if jitter is None else jitter
         start = sampled_start(model)
+        if block is not None:
+            if block not in BLOCKS:
+                raise BayesmotionError(f"block must be one of {sorted(BLOCKS)}, got {block!r}")
+            start = {k: v for k, v in start.items()
+                     if (k in BOTTOM_KEYS) == (block == "bottom")}
+        which = LAYERS if block is None else BLOCKS[block]
         x0, self.unravel = ravel_pytree({k: jnp.asarray(v) for k, v in start.items()})
         self.x0 = np.asarray(x0)
         self.fixed = {"X": jnp.asarray(model.params["X"]), "I": jnp.asarray(model.params["I"])}
@@ -77,13 +92,13 @@ class Target:
         jitter = self.jitter
 
         def logp(x):
-            return lp({**self.fixed, **self.unravel(x)}, jitter)
+            return lp({**self.fixed, **self.unravel(x)}, jitter, which)
 
         self._logp = logp
         self.logp = jax.jit(logp)
         # one compiled value-and-gradient, shared by the conditional MAP and the Laplace step
         self._neg_vg = jax.jit(jax.value_and_grad(
-            lambda x, j: -lp({**self.fixed, **self.unravel(x)}, j)))
+            lambda x, j: -lp({**self.fixed, **self.unravel(x)}, j, which)))
         self.logp_batch = jax.jit(jax.vmap(logp))
 
     @property
@@ -280,7 +295,7 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
                      burn: int | None = None, thin: int | None = None, seed: int = 0,
                      backend=None, progress: bool = True, method: str = "emcee",
                      n_chains: int = 2, init: str = "laplace", ball: float = 1e-3,
-                     moves=None) -> Posterior:
+                     moves=None, factorise: bool = True, gamma_every: int = 4) -> Posterior:
     """Sample the posterior over hyperparameters and training style vectors.
 
     Args:
@@ -305,7 +320,16 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         moves: emcee moves (default: ``emcee.moves.DEMove()``, mixing faster than the stretch
             move in tens of dimensions, each step followed by exact Metropolis steps along the
             style vectors' rotation orbits, where the likelihood is constant:
-            :class:`bayesmotion.moves.StyleRotations`).
+            :class:`bayesmotion.moves.StyleRotations`). Used by both ensembles when
+            ``factorise``.
+        factorise: with the latents fixed the posterior factorises, p(gamma | Y, X)
+            p(beta, alpha, S | X, I): gamma enters only the bottom layer, the most expensive
+            one. ``True`` (default) samples the factors with two independent ensembles, so the
+            slow-mixing one (beta, alpha, styles) never evaluates the bottom layer, and updates
+            gamma once every ``gamma_every`` steps (its 3 coordinates mix in a few steps);
+            output step t pairs the two chains' walkers at steps t and t // gamma_every.
+            ``False``: one ensemble over every coordinate.
+        gamma_every: steps of the upper chain per step of the gamma chain.
 
     Returns:
         a Posterior. A ``ChainTooShortWarning`` is issued when the chain is shorter than 50
@@ -315,9 +339,14 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         # emcee discards burn of its n_steps; NUTS warms up for burn steps before n_steps draws
         raise BayesmotionError(f"burn must be in [0, n_steps = {n_steps}) for emcee and >= 0 "
                                f"for NUTS, got {burn}")
+    if int(gamma_every) != gamma_every or gamma_every < 1:
+        raise BayesmotionError(f"gamma_every must be a positive integer, got {gamma_every!r}")
     target = Target(fitted)
     centre, cdiag = target.conditional_map(progress=False)
-    if method == "emcee":
+    if method == "emcee" and factorise:
+        post = _run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend,
+                               progress, init, ball, moves, int(gamma_every))
+    elif method == "emcee":
         post = _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend,
                           progress, init, ball, moves)
     elif method == "nuts":
@@ -329,65 +358,164 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
     return post
 
 
-def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, progress, init,
-               ball, moves):
-    import emcee
-
-    ndim = target.ndim
+def _n_walkers(n_walkers, ndim) -> int:
     W = n_walkers or 2 * ndim + 2
     W += W % 2
     if W < 2 * ndim:
         raise BayesmotionError(f"emcee needs at least 2 * ndim = {2 * ndim} walkers, got {W}")
+    return W
 
-    def log_prob(xs):
-        return _in_halves(target.logp_batch, xs, W)
 
-    be = None
-    resume, todo = False, n_steps
-    if backend is not None:
-        be = emcee.backends.HDFBackend(str(backend))
-        if be.initialized and be.iteration > 0:
-            shape = be.shape
-            if shape != (W, ndim):
-                raise BayesmotionError(f"backend {backend} holds a run of shape {shape}, this "
-                                       f"run needs {(W, ndim)}; use another file")
-            _check_resumed_density(be, log_prob, backend)
-            resume, todo = True, max(0, n_steps - be.iteration)
-        else:
-            be.reset(W, ndim)
-    if moves is None:
-        # Not DESnookerMove: emcee 3.1.6's snooker move does not leave the target invariant
-        # (its projection divides by sqrt(|z - x|) instead of |z - x|); on 14 iid logit-Beta(11, 1)
-        # coordinates it returns sd 0.88 for an exact 1.32 (tests/test_posterior.py checks the
-        # default moves on that target).
-        moves = emcee.moves.DEMove()
-        slices = style_slices(target.unravel, target.x0) if hasattr(target, "unravel") else {}
-        if slices:  # cross the style vectors' rotation ridges without GP evaluations
-            conc = target.model.log_posterior_fn.style_prior.concentration
-            moves = StyleRotations(moves, slices, conc)
-    sampler = emcee.EnsembleSampler(W, ndim, log_prob, vectorize=True, backend=be, moves=moves)
-    t0 = time.perf_counter()
-    if todo:
-        if resume:
-            sampler.run_mcmc(None, todo, progress=progress)
-        else:  # seeded: emcee keeps its generator state in the State (and the backend)
-            start = _start_points(target, centre, W, init, ball, np.random.default_rng(seed))
-            state = emcee.State(start, random_state=np.random.RandomState(seed).get_state())
-            sampler.run_mcmc(state, todo, progress=progress)
-    seconds = time.perf_counter() - t0
-    chain = sampler.get_chain()  # (steps, W, ndim)
-    lp = sampler.get_log_prob()
+def _open_backend(backend, name, W, ndim, log_prob):
+    """(emcee HDF5 backend or None, steps it already holds); a resumed file must hold a run of
+    this shape and of this posterior."""
+    import emcee
+
+    if backend is None:
+        return None, 0
+    be = emcee.backends.HDFBackend(str(backend), name=name)
+    if be.initialized and be.iteration > 0:
+        if be.shape != (W, ndim):
+            raise BayesmotionError(f"backend {backend} holds a run of shape {be.shape} in its "
+                                   f"group {name!r}, this run needs {(W, ndim)}; use another "
+                                   f"file")
+        _check_resumed_density(be, log_prob, backend)
+        return be, be.iteration
+    be.reset(W, ndim)
+    return be, 0
+
+
+def _default_moves(target):
+    """DE, each step followed by the style rotations when the target samples style vectors.
+
+    Not DESnookerMove: emcee 3.1.6's snooker move does not leave the target invariant (its
+    projection divides by sqrt(|z - x|) instead of |z - x|); on 14 iid logit-Beta(11, 1)
+    coordinates it returns sd 0.88 for an exact 1.32 (tests/test_posterior.py checks the default
+    moves on that target)."""
+    import emcee
+
+    moves = emcee.moves.DEMove()
+    slices = style_slices(target.unravel, target.x0) if hasattr(target, "unravel") else {}
+    if slices:  # cross the style vectors' rotation ridges without GP evaluations
+        conc = target.model.log_posterior_fn.style_prior.concentration
+        moves = StyleRotations(moves, slices, conc)
+    return moves
+
+
+def _initial_state(start, seed):
+    import emcee
+
+    # seeded: emcee keeps its generator state in the State (and the backend)
+    return emcee.State(start, random_state=np.random.RandomState(seed).get_state())
+
+
+def _finish(target, chain, lp, acceptance, burn, thin, info):
+    """Burn-in and thinning from the integrated autocorrelation time of the whole chain."""
+    import emcee
+
     # a walker that never moved in some coordinate makes emcee's autocorrelation 0/0: that
     # coordinate's tau is then NaN, and _burn_thin reports the chain as too short
     with np.errstate(invalid="ignore", divide="ignore"):
         tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
-    info = _burn_thin(tau, chain.shape[0], burn, thin)
-    sel = slice(info["burn"], None, info["thin"])
+    bt = _burn_thin(tau, chain.shape[0], burn, thin)
+    sel = slice(bt["burn"], None, bt["thin"])
     return Posterior(target.model, target, np.swapaxes(chain[sel], 0, 1),
-                     np.swapaxes(lp[sel], 0, 1), np.asarray(sampler.acceptance_fraction),
-                     "emcee", {**info, "tau": tau, "n_walkers": W, "n_steps": chain.shape[0],
-                               "seconds": seconds,
-                               "rotation_acceptance": getattr(moves, "acceptance", None)})
+                     np.swapaxes(lp[sel], 0, 1), np.asarray(acceptance), "emcee",
+                     {**bt, "tau": tau, "n_walkers": chain.shape[1], "n_steps": chain.shape[0],
+                      **info})
+
+
+def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, progress, init,
+               ball, moves):
+    """One ensemble over every sampled coordinate."""
+    import emcee
+
+    W = _n_walkers(n_walkers, target.ndim)
+
+    def log_prob(xs):
+        return _in_halves(target.logp_batch, xs, W)
+
+    be, done = _open_backend(backend, "mcmc", W, target.ndim, log_prob)
+    moves = _default_moves(target) if moves is None else moves
+    sampler = emcee.EnsembleSampler(W, target.ndim, log_prob, vectorize=True, backend=be,
+                                    moves=moves)
+    t0 = time.perf_counter()
+    if n_steps > done:
+        if done:
+            sampler.run_mcmc(None, n_steps - done, progress=progress)
+        else:
+            start = _start_points(target, centre, W, init, ball, np.random.default_rng(seed))
+            sampler.run_mcmc(_initial_state(start, seed), n_steps, progress=progress)
+    seconds = time.perf_counter() - t0
+    return _finish(target, sampler.get_chain(), sampler.get_log_prob(),
+                   sampler.acceptance_fraction, burn, thin,
+                   {"seconds": seconds, "factorised": False,
+                    "rotation_acceptance": getattr(moves, "acceptance", None)})
+
+
+def _run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend, progress,
+                    init, ball, moves, gamma_every):
+    """Two independent ensembles, one per factor of p(gamma | Y, X) p(beta, alpha, S | X, I).
+
+    The upper ensemble (beta, alpha, styles) takes ``n_steps`` steps and never evaluates the
+    bottom layer; the bottom ensemble (gamma, 3 coordinates) takes one step for every
+    ``gamma_every`` of them. Output step t pairs upper step t with bottom step
+    ``t // gamma_every``, walker by walker. As the factors are independent, this is the chain
+    of a valid composite kernel on the joint posterior (the gamma update is applied every
+    ``gamma_every`` steps): its draws, autocorrelation times and diagnostics are those of the
+    joint chain, with gamma's held values counted as the repeats they are.
+    """
+    model = target.model
+    up = Target(model, target.jitter, "upper")
+    bot = Target(model, target.jitter, "bottom")
+    iu = np.array([target.names.index(n) for n in up.names])
+    ib = np.array([target.names.index(n) for n in bot.names])
+    W = _n_walkers(n_walkers, up.ndim)
+    n_bot = -(-n_steps // gamma_every)
+
+    def lp_up(xs):
+        return _in_halves(up.logp_batch, xs, W)
+
+    def lp_bot(xs):
+        return _in_halves(bot.logp_batch, xs, W)
+
+    be_up, done_up = _open_backend(backend, "mcmc", W, up.ndim, lp_up)
+    be_bot, done_bot = _open_backend(backend, "gamma", W, bot.ndim, lp_bot)
+    import emcee
+
+    moves_up = _default_moves(up) if moves is None else moves
+    moves_bot = _default_moves(bot) if moves is None else moves
+    s_up = emcee.EnsembleSampler(W, up.ndim, lp_up, vectorize=True, backend=be_up,
+                                 moves=moves_up)
+    s_bot = emcee.EnsembleSampler(W, bot.ndim, lp_bot, vectorize=True, backend=be_bot,
+                                  moves=moves_bot)
+    start = None
+    if not (done_up and done_bot):
+        start = _start_points(target, centre, W, init, ball, np.random.default_rng(seed))
+    init_up = s_up._previous_state if done_up else _initial_state(start[:, iu], seed)
+    init_bot = s_bot._previous_state if done_bot else _initial_state(start[:, ib], seed + 1)
+    t0 = time.perf_counter()
+    gen_up = s_up.sample(init_up, iterations=max(0, n_steps - done_up), progress=progress)
+    gen_bot = s_bot.sample(init_bot, iterations=max(0, n_bot - done_bot))
+    for t in range(done_up, n_steps):  # interleaved, so a killed run leaves both files current
+        next(gen_up)
+        while done_bot < min(n_bot, t // gamma_every + 1):
+            next(gen_bot)
+            done_bot += 1
+    for _ in gen_bot:  # the bottom steps still missing when the upper chain was complete
+        pass
+    for _ in gen_up:  # close the generators (each saves a step before it yields it)
+        pass
+    seconds = time.perf_counter() - t0
+    c_up, c_bot = s_up.get_chain()[:n_steps], s_bot.get_chain()[:n_bot]
+    l_up, l_bot = s_up.get_log_prob()[:n_steps], s_bot.get_log_prob()[:n_bot]
+    held = np.arange(n_steps) // gamma_every
+    chain = np.empty((n_steps, W, target.ndim))
+    chain[..., iu], chain[..., ib] = c_up, c_bot[held]
+    return _finish(target, chain, l_up + l_bot[held], s_up.acceptance_fraction, burn, thin,
+                   {"seconds": seconds, "factorised": True, "gamma_every": gamma_every,
+                    "bottom_acceptance": np.asarray(s_bot.acceptance_fraction),
+                    "rotation_acceptance": getattr(moves_up, "acceptance", None)})
 
 
 def _check_resumed_density(be, log_prob, backend) -> None:
