@@ -295,3 +295,13 @@ def test_factorised_chain_holds_gamma_and_resumes_bit_for_bit(tiny_model, tmp_pa
         whole.chains.shape[0],)
     with pytest.raises(bm.BayesmotionError, match="gamma_every"):
         bm.sample_posterior(tiny_model, n_steps=10, gamma_every=0, progress=False)
+
+
+def test_a_joint_chain_file_is_not_resumed_by_the_factorised_sampler(tiny_model, tmp_path):
+    h5 = tmp_path / "chain.h5"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        bm.sample_posterior(tiny_model, n_steps=4, backend=h5, progress=False, burn=1, thin=1,
+                            factorise=False)
+    with pytest.raises(bm.BayesmotionError, match="holds a run of shape"):
+        bm.sample_posterior(tiny_model, n_steps=8, backend=h5, progress=False, burn=1, thin=1)

@@ -300,7 +300,9 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
 
     Args:
         fitted: a FittedHGPDM.
-        n_walkers: emcee walkers (default ``2 * ndim + 2``, even).
+        n_walkers: emcee walkers (default ``2 * ndim + 2``, even, with ndim the number of
+            coordinates of the larger ensemble: every coordinate but gamma's when
+            ``factorise``). Both ensembles have this many walkers.
         n_steps: emcee steps per walker (NUTS: samples per chain after as many warm-up steps).
         burn, thin: discarded leading steps and thinning; by default chosen from the integrated
             autocorrelation time tau (burn = 2 max tau, thin = max(1, min tau / 2)). NUTS:
