@@ -199,7 +199,9 @@ class Posterior:
         target: the sampled density.
         chains: (n_chains, n_draws, ndim) unconstrained draws after burn-in and thinning.
         log_prob: (n_chains, n_draws).
-        acceptance: (n_chains,) acceptance fraction (emcee) or mean acceptance prob (NUTS).
+        acceptance: (n_chains,) acceptance fraction (emcee; with the factorised sampler that
+            of the (beta, alpha, styles) ensemble, gamma's in ``info["bottom_acceptance"]``) or
+            mean acceptance prob (NUTS).
         method: "emcee" or "nuts".
         info: tau, burn, thin, seconds, n_steps, warnings.
     """
@@ -322,8 +324,9 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         moves: emcee moves (default: ``emcee.moves.DEMove()``, mixing faster than the stretch
             move in tens of dimensions, each step followed by exact Metropolis steps along the
             style vectors' rotation orbits, where the likelihood is constant:
-            :class:`bayesmotion.moves.StyleRotations`). Used by both ensembles when
-            ``factorise``.
+            :class:`bayesmotion.moves.StyleRotations`). When ``factorise``, the moves of the
+            (beta, alpha, styles) ensemble, whose coordinates are the target's without gamma's
+            (``Target(fitted, block="upper")``); gamma's ensemble always uses DE.
         factorise: with the latents fixed the posterior factorises, p(gamma | Y, X)
             p(beta, alpha, S | X, I): gamma enters only the bottom layer, the most expensive
             one. ``True`` (default) samples the factors with two independent ensembles, so the
@@ -380,7 +383,8 @@ def _open_backend(backend, name, W, ndim, log_prob):
         if be.shape != (W, ndim):
             raise BayesmotionError(f"backend {backend} holds a run of shape {be.shape} in its "
                                    f"group {name!r}, this run needs {(W, ndim)}; use another "
-                                   f"file")
+                                   f"file (a file of the joint sampler resumes with "
+                                   f"factorise=False)")
         _check_resumed_density(be, log_prob, backend)
         return be, be.iteration
     be.reset(W, ndim)
@@ -486,7 +490,7 @@ def _run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backen
     import emcee
 
     moves_up = _default_moves(up) if moves is None else moves
-    moves_bot = _default_moves(bot) if moves is None else moves
+    moves_bot = _default_moves(bot)  # DE: gamma has no style coordinates
     s_up = emcee.EnsembleSampler(W, up.ndim, lp_up, vectorize=True, backend=be_up,
                                  moves=moves_up)
     s_bot = emcee.EnsembleSampler(W, bot.ndim, lp_bot, vectorize=True, backend=be_bot,
