@@ -302,9 +302,8 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
 
     Args:
         fitted: a FittedHGPDM.
-        n_walkers: emcee walkers (default ``2 * ndim + 2``, even, with ndim the number of
-            coordinates of the larger ensemble: every coordinate but gamma's when
-            ``factorise``). Both ensembles have this many walkers.
+        n_walkers: emcee walkers (default ``2 * ndim + 2``, even, ndim counting every
+            sampled coordinate). When ``factorise``, both ensembles have this many walkers.
         n_steps: emcee steps per walker (NUTS: samples per chain after as many warm-up steps).
         burn, thin: discarded leading steps and thinning; by default chosen from the integrated
             autocorrelation time tau (burn = 2 max tau, thin = max(1, min tau / 2)). NUTS:
@@ -476,7 +475,9 @@ def _run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backen
     bot = Target(model, target.jitter, "bottom")
     iu = np.array([target.names.index(n) for n in up.names])
     ib = np.array([target.names.index(n) for n in bot.names])
-    W = _n_walkers(n_walkers, up.ndim)
+    # as many walkers as the joint sampler: 48 instead of 54 at the demo size gave a lower bulk
+    # ESS after 7,000 steps (171 vs 298, same autocorrelation time per step)
+    W = _n_walkers(n_walkers, target.ndim)
     n_bot = -(-n_steps // gamma_every)
 
     def lp_up(xs):
