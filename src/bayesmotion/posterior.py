@@ -477,8 +477,7 @@ def _run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backen
     ib = np.array([target.names.index(n) for n in bot.names])
     # as many walkers as the joint sampler: 48 instead of 54 at the demo size gave a lower bulk
     # ESS after 7,000 steps (171 vs 298, same autocorrelation time per step)
-    W = _n_walkers(n_walkers, target.ndim)
-    n_bot = -(-n_steps // gamma_every)
+    W = _n_walkers(n_walkers or 2 * target.ndim + 2, up.ndim)
 
     def lp_up(xs):
         return _in_halves(up.logp_batch, xs, W)
@@ -488,6 +487,8 @@ def _run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backen
 
     be_up, done_up = _open_backend(backend, "mcmc", W, up.ndim, lp_up)
     be_bot, done_bot = _open_backend(backend, "gamma", W, bot.ndim, lp_bot)
+    n_steps = max(n_steps, done_up)  # a file holding more steps returns them all (as joint)
+    n_bot = -(-n_steps // gamma_every)
     import emcee
 
     moves_up = _default_moves(up) if moves is None else moves
