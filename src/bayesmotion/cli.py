@@ -61,9 +61,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--steps", type=int, default=2000)
     s.add_argument("--walkers", type=int, default=None)
     s.add_argument("--backend", default=None, help="HDF5 file to save/resume the chain")
-    s.add_argument("--joint", action="store_true",
-                   help="one ensemble over every coordinate (factorise=False): the default "
-                        "samples gamma and the other coordinates with two ensembles")
+    s.add_argument("--factorise", action="store_true",
+                   help="sample gamma and the other coordinates with two ensembles "
+                        "(sample_posterior(factorise=True)) instead of one")
     g = add("generate", "generate handshakes from a model")
     g.add_argument("model")
     g.add_argument("--emotion", default="neutral", help="a label or coordinates, e.g. 0.5,0.5,0,0")
@@ -131,7 +131,7 @@ def _cmd_sample(a):
 
     m = load(a.model)
     post = sample_posterior(m, n_walkers=a.walkers, n_steps=a.steps, backend=a.backend,
-                            factorise=not a.joint)
+                            factorise=a.factorise)
     post.to_netcdf(a.out)
     c = convergence(post)
     print(f"wrote {a.out}: max R-hat {c['max_rhat']:.3f}, min bulk ESS {c['min_ess_bulk']:.0f}, "
