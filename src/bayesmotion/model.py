@@ -246,37 +246,37 @@ class LogPosterior:
         """
         unknown = set(which) - set(LAYERS)
         if unknown:
-            raise ValueError(f"unknown layers {sorted(unknown)}; expected some of {LAYERS}")
+            raise BayesmotionError(f"unknown layers {sorted(unknown)}; expected some of "
+                                   f"{LAYERS}")
         params = {k: jnp.asarray(v) for k, v in params.items()}
         h = constrained(params)
         X, I = params["X"], params["I"]
         A = X.shape[0]
-        zero = jnp.zeros(())
-        bottom = inter = dyn = zero
+        terms = {k: jnp.zeros(()) for k in LAYERS}
         if "bottom" in which:
-            bottom = sum(layers.gplvm_loglik(X[a], jnp.asarray(self.data.Y[a]), h["gamma"],
-                                             jitter) for a in range(A))
-        Z = jnp.concatenate([X[a] for a in range(A)], axis=1)
-        fi, fd = self.spec.interaction_factors, self.spec.dynamics_factors
-        if "interaction" not in which:
-            pass
-        elif self.dense or self.int_blocks is None or not self._fixed(params, fi):
-            S_int = self.frame_styles(params, fi)
-            inter = layers.style_gplvm_loglik(I, Z, S_int, h["beta"], jitter)
-        else:
-            inter = layers.blocked_style_gplvm_loglik(I, Z, h["beta"], self.int_blocks, jitter)
-        if "dynamics" not in which:
-            pass
-        elif self.dense or self.dyn_blocks is None or not self._fixed(params, fd):
-            S_dyn = self.frame_styles(params, fd)
-            dyn = layers.gpdm_loglik(I, S_dyn, h["alpha"], self.index, jitter,
-                                     self.spec.priors.init_var)
-        else:
-            dyn = layers.blocked_gpdm_loglik(I, h["alpha"], self.index, self.dyn_blocks, jitter,
-                                             self.spec.priors.init_var)
+            terms["bottom"] = sum(layers.gplvm_loglik(X[a], jnp.asarray(self.data.Y[a]),
+                                                      h["gamma"], jitter) for a in range(A))
+        if "interaction" in which:
+            Z = jnp.concatenate([X[a] for a in range(A)], axis=1)
+            terms["interaction"] = self._interaction(params, I, Z, h["beta"], jitter)
+        if "dynamics" in which:
+            terms["dynamics"] = self._dynamics(params, I, h["alpha"], jitter)
         prior = (log_prior_hyper(params, self.spec.priors, self.spec.order)
                  + log_prior_style(params, self.style_prior))
-        return {"bottom": bottom, "interaction": inter, "dynamics": dyn, "prior": prior}
+        return {**terms, "prior": prior}
+
+    def _interaction(self, params, I, Z, beta, jitter):
+        fi = self.spec.interaction_factors
+        if self.dense or self.int_blocks is None or not self._fixed(params, fi):
+            return layers.style_gplvm_loglik(I, Z, self.frame_styles(params, fi), beta, jitter)
+        return layers.blocked_style_gplvm_loglik(I, Z, beta, self.int_blocks, jitter)
+
+    def _dynamics(self, params, I, alpha, jitter):
+        fd, v0 = self.spec.dynamics_factors, self.spec.priors.init_var
+        if self.dense or self.dyn_blocks is None or not self._fixed(params, fd):
+            return layers.gpdm_loglik(I, self.frame_styles(params, fd), alpha, self.index,
+                                      jitter, v0)
+        return layers.blocked_gpdm_loglik(I, alpha, self.index, self.dyn_blocks, jitter, v0)
 
     def __call__(self, params: dict, jitter=0.0, which=LAYERS) -> jnp.ndarray:
         t = self.layer_terms(params, jitter, which)

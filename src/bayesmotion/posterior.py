@@ -75,7 +75,6 @@ class Target:
 
     def __init__(self, model, jitter: float | None = None, block: str | None = None):
         self.model = model
-        self.block = block
         self.jitter = model.diagnostics.get("jitter", 1e-8) if jitter is None else jitter
         start = sampled_start(model)
         if block is not None:
@@ -473,6 +472,8 @@ def _run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backen
     ``gamma_every`` steps): its draws, autocorrelation times and diagnostics are those of the
     joint chain, with gamma's held values counted as the repeats they are.
     """
+    import emcee
+
     model = target.model
     up = Target(model, target.jitter, "upper")
     bot = Target(model, target.jitter, "bottom")
@@ -491,8 +492,6 @@ def _run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backen
     be_bot, done_bot = _open_backend(backend, "gamma", W, bot.ndim, lp_bot)
     n_steps = max(n_steps, done_up)  # a file holding more steps returns them all (as joint)
     n_bot = -(-n_steps // gamma_every)
-    import emcee
-
     moves_up = _default_moves(up) if moves is None else moves
     moves_bot = _default_moves(bot)  # DE: gamma has no style coordinates
     s_up = emcee.EnsembleSampler(W, up.ndim, lp_up, vectorize=True, backend=be_up,
