@@ -1,0 +1,84 @@
+"""The pure-JAX L-BFGS (bayesmotion.lbfgs) against known minima and scipy's L-BFGS-B."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.optimize
+
+from bayesmotion import lbfgs
+
+
+def rosenbrock(x):
+    return jnp.sum(100.0 * (x[1:] - x[:-1] ** 2) ** 2 + (1.0 - x[:-1]) ** 2)
+
+
+@jax.jit
+def run(x0, max_iter):
+    return lbfgs.minimize(jax.value_and_grad(rosenbrock), x0, max_iter)
+
+
+@pytest.mark.parametrize("d", [2, 10, 50])
+def test_rosenbrock_reaches_the_minimum_in_as_few_evaluations_as_scipy(d):
+    x0 = jnp.full(d, -1.2)
+    r = run(x0, 2000)
+    assert int(r.status) in (lbfgs.CONVERGED_GTOL, lbfgs.CONVERGED_FTOL)
+    np.testing.assert_allclose(np.asarray(r.x), np.ones(d), atol=2e-5)
+    assert float(r.fun) < 1e-9
+    ref = scipy.optimize.minimize(
+        lambda x: (float(rosenbrock(x)), np.asarray(jax.grad(rosenbrock)(x), np.float64)),
+        np.asarray(x0), jac=True, method="L-BFGS-B", options={"maxiter": 2000})
+    assert int(r.nfev) <= 1.5 * ref.nfev  # d = 2: 33 vs 35; 10: 89 vs 79; 50: 299 vs 316
+
+
+def test_ill_conditioned_quadratic_matches_the_solution():
+    A = np.diag(np.logspace(0, 4, 100))
+    b = np.linspace(-1.0, 2.0, 100)
+    f = lambda x: 0.5 * x @ (jnp.asarray(A) @ x) - jnp.asarray(b) @ x
+    r = jax.jit(lambda x0: lbfgs.minimize(jax.value_and_grad(f), x0, 5000))(jnp.zeros(100))
+    exact = -0.5 * b @ np.linalg.solve(A, b)
+    assert abs(float(r.fun) - exact) < 1e-6 * abs(exact)
+
+
+def test_iteration_limit_is_honoured_and_traced():
+    calls = []
+    f = lambda x0, n: (calls.append(1), lbfgs.minimize(jax.value_and_grad(rosenbrock), x0, n))[1]
+    g = jax.jit(f)
+    for n in (1, 5, 17):
+        r = g(jnp.full(10, -1.2), n)
+        assert int(r.nit) == n and int(r.status) == lbfgs.MAX_ITER
+    assert len(calls) == 1  # the limit is a traced argument: one compilation
+    r = g(jnp.full(10, -1.2), 0)
+    assert int(r.nit) == 0 and int(r.status) == lbfgs.MAX_ITER
+    np.testing.assert_array_equal(np.asarray(r.x), np.full(10, -1.2))
+
+
+def test_start_at_the_minimum_stops_at_once():
+    r = run(jnp.ones(4), 100)
+    assert int(r.nit) == 0 and int(r.status) == lbfgs.CONVERGED_GTOL
+
+
+def test_non_finite_values_are_backed_away_from():
+    """Values are +inf beyond x0 = 0.5 (a failed Cholesky, say): the run never returns a
+    non-finite point or one worse than its start, and gets to the boundary's neighbourhood."""
+    f = lambda x: jnp.where(x[0] > 0.5, jnp.nan, (x[0] - 1.0) ** 2 + x[1] ** 2)
+    x0 = jnp.asarray([0.0, 1.0])
+    r = jax.jit(lambda x0: lbfgs.minimize(jax.value_and_grad(f), x0, 100))(x0)
+    assert np.all(np.isfinite(np.asarray(r.x))) and np.isfinite(float(r.fun))
+    assert float(r.fun) <= float(f(x0))
+    assert float(r.x[0]) <= 0.5 and float(r.fun) < 0.6
+    # a start where the value is not finite: returned unchanged, flagged
+    bad = jnp.asarray([1.0, 0.0])
+    r = jax.jit(lambda x0: lbfgs.minimize(jax.value_and_grad(f), x0, 100))(bad)
+    assert int(r.status) == lbfgs.LINE_SEARCH_FAILED and int(r.nit) == 0
+    np.testing.assert_array_equal(np.asarray(r.x), np.asarray(bad))
+
+
+def test_vmapped_runs_equal_single_runs():
+    x0 = jnp.asarray([[-1.2, 1.0, 0.5], [0.3, -0.7, 2.0], [1.5, 1.5, 1.5]])
+    batched = jax.jit(jax.vmap(lambda x: lbfgs.minimize(jax.value_and_grad(rosenbrock), x,
+                                                        200)))(x0)
+    for i in range(3):
+        single = run(x0[i], 200)
+        np.testing.assert_allclose(np.asarray(batched.x[i]), np.asarray(single.x), rtol=1e-12)
+        assert int(batched.nit[i]) == int(single.nit)
