@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import bayesmotion as bm
+from bayesmotion import project
 from bayesmotion.clip import clip_poses
 from bayesmotion.infer import _largest_prior, _style_setup
 from bayesmotion.infer_density import clip_log_density
@@ -58,7 +59,8 @@ def _setup(model, trial, T, B):
     return params, args, statics
 
 
-def test_chunked_hessian_matches_differences_and_padding_carries_nothing(tiny_model, tiny_data):
+def test_chunked_hessian_matches_differences_and_padding_carries_nothing(tiny_model, tiny_data,
+                                                                           monkeypatch):
     from jax.flatten_util import ravel_pytree
 
     T, B = 8, 12  # the tiny trials have 9 frames; frames 0..11 in 5 residue classes
@@ -75,14 +77,20 @@ def test_chunked_hessian_matches_differences_and_padding_carries_nothing(tiny_mo
     scale = np.abs(H).max()
     np.testing.assert_allclose(H, ref, rtol=1e-5, atol=1e-7 * scale)
     np.testing.assert_allclose(H, H.T, rtol=0, atol=1e-10 * scale)
-    # the banded reconstruction from (2 o + 1) L + 1 = 46 products gives the same matrix
+    # the banded reconstruction from A Q_X + (2 o + 1) Q_I + 1 = 6 + 15 + 1 = 22 products
+    # gives the same matrix
+    calls = []
+    real_hvps = project._hvps
+    monkeypatch.setattr(project, "_hvps", lambda p, V, *a, **k: calls.append(V.shape[0])
+                        or real_hvps(p, V, *a, **k))
     Hb = banded_hessian(params, args, statics)
     np.testing.assert_allclose(Hb, H, rtol=1e-10, atol=1e-10 * scale)
-    # the exact diagonal from 3 L + 1 = 28 coloured products (the projection's scaling and the
-    # latents' Laplace sd)
+    # the exact diagonal from A Q_X + (o + 1) Q_I + 1 = 6 + 9 + 1 = 16 coloured products (the
+    # projection's scaling and the latents' Laplace sd)
     D = diag_hessian(params, args, statics)
     np.testing.assert_allclose(np.asarray(ravel_pytree(D)[0]), np.diag(H), rtol=1e-10,
                                atol=1e-10 * scale)
+    assert calls == [22, 16]
     # the padded frames' latents carry no density: their rows and columns are exactly zero
     pad = {k: (jnp.zeros_like(v).at[..., T:, :].set(1.0) if k in ("X", "I")
                else jnp.zeros_like(v)) for k, v in params.items()}
@@ -148,3 +156,15 @@ def test_largest_prior():
 def test_vertices_rejects_unknown_mode(tiny_model, tiny_data):
     with pytest.raises(bm.BayesmotionError, match="'vertices'"):
         bm.infer_emotion(tiny_model, tiny_data[0], emotion_starts="vertex")
+
+
+def test_frame_buckets_bound_the_padding():
+    """Clips are padded to few sizes (shared compilations) with at most a quarter of waste."""
+    from bayesmotion.project import _bucket
+
+    sizes = np.array([_bucket(n) for n in range(1, 2049)])
+    n = np.arange(1, 2049)
+    assert np.all(sizes >= n) and np.all(np.diff(sizes) >= 0)
+    assert np.all(sizes[n > 16] < 1.25 * n[n > 16])
+    assert _bucket(17) == 20 and _bucket(16) == 16 and _bucket(33) == 40
+    assert len(np.unique(sizes[(n > 256) & (n <= 512)])) == 4  # four sizes per doubling

@@ -28,6 +28,7 @@ import numpy as np
 import scipy.optimize
 from jax.flatten_util import ravel_pytree
 
+from . import lbfgs
 from .infer_density import clip_log_density
 from .params import simplex_to_style
 
@@ -38,10 +39,14 @@ _STATIC = ("int_factors", "dyn_factors", "init_var")
 
 
 def _bucket(n: int) -> int:
-    b = 16
-    while b < n:
-        b *= 2
-    return b
+    """Frames a clip of ``n`` is padded to: 16, then four sizes per doubling (20, 24, 28, 32,
+    40, ...). Every density evaluation pays for the padded frames, so the step bounds the waste
+    at a quarter of the real frames (a 17-frame clip costs 20, not 32) while clips of many
+    lengths still share a few compiled functions."""
+    if n <= 16:
+        return 16
+    step = 1 << max((n - 1).bit_length() - 3, 0)  # a quarter of the doubling n falls in
+    return -(-n // step) * step
 
 
 @partial(jax.jit, static_argnames=_STATIC)
@@ -49,6 +54,18 @@ def _neg_value_and_grad(params, P, Ys, mask, fixed, conc, int_factors, dyn_facto
     f = lambda p: -clip_log_density(P, p, Ys, mask, fixed, conc, int_factors, dyn_factors,
                                     init_var)
     return jax.value_and_grad(f)(params)
+
+
+@partial(jax.jit, static_argnames=_STATIC)
+def _scaled_lbfgs(x, scale, n_iter, template, P, Ys, mask, fixed, conc, int_factors,
+                  dyn_factors, init_var) -> lbfgs.LbfgsResult:
+    """At most ``n_iter`` L-BFGS iterations on -log p over z = x / scale, in one call;
+    ``template`` gives the pytree layout of x (values unused). The result's x is unscaled."""
+    unravel = ravel_pytree(template)[1]
+    f = lambda z: -clip_log_density(P, unravel(z * scale), Ys, mask, fixed, conc, int_factors,
+                                    dyn_factors, init_var)
+    r = lbfgs.minimize(jax.value_and_grad(f), x / scale, n_iter)
+    return r._replace(x=r.x * scale)
 
 
 def _init_latents(model, Ys, B, rows=None):
@@ -117,37 +134,33 @@ def _style_start(model, factor: str, conc, nearest) -> np.ndarray:
 
 def _lbfgs(params, args, statics, max_iter, round_iter: int = ROUND_ITER):
     """L-BFGS on -log p in coordinates scaled by |diag H|^(-1/2), the diagonal recomputed
-    exactly (:func:`_diag_probes`) every ``round_iter`` iterations.
+    exactly (:func:`_diag_probes`) every ``round_iter`` iterations; each round is one jitted
+    call (bayesmotion.lbfgs).
 
     The clip density is badly conditioned: the bottom layer's curvature in X is orders of
     magnitude above the dynamics' in I. Unscaled, 1000 iterations from the nearest training
     frames got a generated neutral handshake to -7,303 with the emotion held at neutral, where
-    the generating latents alone score -9,884; scaled, 300 iterations reach -9,491. Returns
+    the generating latents alone score -9,884; scaled, 300 iterations reach -9,491 (scipy's
+    L-BFGS-B, session 12). Returns
     (params, scipy result with ``nit`` the total iterations)."""
     x0, unravel = ravel_pytree(params)
     x = np.asarray(x0, np.float64)
     V = jnp.asarray(_diag_probes(params, args[0].dyn_lags.shape[0] + 1))
-    done, res = 0, None
+    done, nfev, res = 0, 0, None
     while done < max_iter:
         a = np.abs(_diag_flat(unravel(jnp.asarray(x)), V, args, statics))
         top = a.max() if a.size and a.max() > 0 else 1.0
         scale = np.where(a > 0, 1.0 / np.sqrt(np.maximum(a, 1e-6 * top)), 1.0)
-
-        def fun(z, scale=scale):
-            v, g = _neg_value_and_grad(unravel(jnp.asarray(z * scale)), *args, **statics)
-            v = float(v)
-            g = np.asarray(ravel_pytree(g)[0], dtype=np.float64) * scale
-            if not np.isfinite(v) or not np.all(np.isfinite(g)):
-                return 1e300, np.zeros_like(g)
-            return v, g
-
         n = min(round_iter, max_iter - done)
-        r = scipy.optimize.minimize(fun, x / scale, jac=True, method="L-BFGS-B",
-                                    options={"maxiter": n})
-        x = r.x * scale
-        done += max(int(r.nit), 1)
-        res = r
-        if r.nit < n:  # converged (or no progress) at this scaling
+        r = _scaled_lbfgs(jnp.asarray(x), jnp.asarray(scale), n, params, *args, **statics)
+        x = np.asarray(r.x, np.float64)
+        nit, status = int(r.nit), int(r.status)
+        done += max(nit, 1)
+        nfev += int(r.nfev)
+        res = scipy.optimize.OptimizeResult(
+            fun=float(r.fun), nfev=nfev, status=status, message=lbfgs.MESSAGES[status],
+            success=status in (lbfgs.CONVERGED_GTOL, lbfgs.CONVERGED_FTOL))
+        if status != lbfgs.MAX_ITER:  # converged (or no progress) at this scaling
             break
     res.x, res.nit = x, done
     return unravel(jnp.asarray(x)), res
@@ -161,28 +174,31 @@ def _diag_flat(params, V, args, statics) -> np.ndarray:
 
 def diag_hessian(params, args, statics) -> dict:
     """Exact diagonal of the Hessian of -log p over ``params``, shaped like ``params``, from
-    3 (A Q_X + Q_I) + n_style Hessian-vector products (:func:`_diag_probes`)."""
+    A Q_X + (o + 1) Q_I + n_style Hessian-vector products (:func:`_diag_probes`)."""
     V = jnp.asarray(_diag_probes(params, args[0].dyn_lags.shape[0] + 1))
     return ravel_pytree(params)[1](jnp.asarray(_diag_flat(params, V, args, statics)))
 
 
 def _diag_probes(params, period: int) -> np.ndarray:
-    """Probe vectors (n, d) whose Hessian products give diag H exactly: one probe per
-    within-frame latent coordinate and residue of the frame index mod ``period`` (the
-    dynamics order + 1: a frame's latents share terms only with frames up to ``order`` away,
-    and X only within its own frame), and one per style coordinate. With P probes V_p,
-    diag H = sum_p V_p * (H V_p). 3 (A Q_X + Q_I) + n_style probes, whatever the clip length.
+    """Probe vectors (n, d) whose Hessian products give diag H exactly.
+
+    X*_a,t shares density terms only with latents of its own frame (the bottom and interaction
+    terms are per frame), so one probe per actor and coordinate summed over every frame; I*_t
+    shares the dynamics terms with frames up to ``order`` away, so one probe per coordinate and
+    residue of the frame index mod ``period`` (order + 1); one probe per style coordinate. With
+    probes V_p, diag H = sum_p V_p * (H V_p): A Q_X + (order + 1) Q_I + n_style products,
+    whatever the clip length.
     """
     B = params["I"].shape[0]
     probes = []
     for key, v in params.items():
         shape = np.shape(v)
-        if key in ("X", "I"):
-            inner = [(a,) for a in range(shape[0])] if key == "X" else [()]
-            for c in range(period):
-                for pre in inner:
-                    for q in range(shape[-1]):
-                        probes.append((key, pre + (slice(c, B, period), q)))
+        if key == "X":
+            probes.extend((key, (a, slice(None), q)) for a in range(shape[0])
+                          for q in range(shape[2]))
+        elif key == "I":
+            probes.extend((key, (slice(c, B, period), q)) for c in range(period)
+                          for q in range(shape[1]))
         else:
             probes.extend((key, (j,)) for j in range(int(np.prod(shape))))
     out = []
@@ -221,15 +237,16 @@ def _project(params, args, statics, max_iter, inferred, conc):
 def _hvps(params, V, P, Ys, mask, fixed, conc, int_factors, dyn_factors, init_var):
     """(n, d) rows H v for each row v of ``V``, H the Hessian of -log p over ``params``
     (ravel_pytree order): one linearisation of the gradient, then the products in chunks of
-    64 (memory bounded by the chunk, not by n)."""
+    at most 64 (memory bounded by the chunk, not by n)."""
     z0, unravel = ravel_pytree(params)
     f = lambda z: -clip_log_density(P, unravel(z), Ys, mask, fixed, conc, int_factors,
                                     dyn_factors, init_var)
     _, hvp = jax.linearize(jax.grad(f), z0)
     n, d = V.shape
-    m = -(-n // HVP_CHUNK) * HVP_CHUNK
+    chunk = min(HVP_CHUNK, n)  # fewer probes than a chunk: no padding products
+    m = -(-n // chunk) * chunk
     V = jnp.concatenate([V, jnp.zeros((m - n, d), V.dtype)])
-    return jax.lax.map(jax.vmap(hvp), V.reshape(-1, HVP_CHUNK, d)).reshape(m, d)[:n]
+    return jax.lax.map(jax.vmap(hvp), V.reshape(-1, chunk, d)).reshape(m, d)[:n]
 
 
 def _frame_layout(params):
@@ -254,17 +271,20 @@ def _frame_layout(params):
 
 
 def banded_hessian(params, args, statics) -> np.ndarray:
-    """Dense Hessian of -log p over ``params`` from (2 o + 1) L + n_style Hessian-vector
-    products instead of d (o the dynamics order, L the latent coordinates per frame).
+    """Dense Hessian of -log p over ``params`` from A Q_X + (2 o + 1) Q_I + n_style
+    Hessian-vector products instead of d (o the dynamics order, Q_X and Q_I the latent
+    dimensions, A the actors).
 
-    A frame's latents share density terms only with frames up to o away (the dynamics' lags;
-    the bottom and interaction terms are per frame), so the latent block of H is banded: a probe
-    summing coordinate j over every frame congruent to c mod 2 o + 1 returns, in the row of a
-    latent of frame t, the single entry against the one such frame within o of t. Style
-    coordinates couple with everything and get one probe each."""
+    The bottom and interaction terms are per frame and the dynamics terms couple I* over o
+    lags, so the latent block of H is banded, and the X* columns meet only their own frame. A
+    probe summing X* coordinate (a, q) over every frame returns, in the row of any latent of
+    frame t, the entry against X*_a,t,q; a probe summing I* coordinate j over the frames
+    congruent to c mod 2 o + 1 returns the entry against the one such frame within o of t.
+    Style coordinates couple with everything and get one probe each."""
     frame, local = _frame_layout(params)
     o = args[0].dyn_lags.shape[0]
-    period, d = 2 * o + 1, frame.size
+    Q_I = params["I"].shape[1]
+    d = frame.size
     lat = np.flatnonzero(frame >= 0)
     sty = np.flatnonzero(frame < 0)
     L = int(local.max()) + 1
@@ -272,12 +292,13 @@ def banded_hessian(params, args, statics) -> np.ndarray:
     where = np.full((B, L), -1)
     where[frame[lat], local[lat]] = lat
     rows, probes = [], []
-    for c in range(period):
-        for j in range(L):
+    for j in range(L):
+        period = 2 * o + 1 if j < Q_I else 1  # local index: I first, then each actor's X
+        for c in range(period):
             v = np.zeros(d)
             v[lat[(frame[lat] % period == c) & (local[lat] == j)]] = 1.0
             probes.append(v)
-            rows.append((c, j))
+            rows.append((period, c, j))
     for i in sty:
         v = np.zeros(d)
         v[i] = 1.0
@@ -286,9 +307,9 @@ def banded_hessian(params, args, statics) -> np.ndarray:
                     dtype=np.float64)
     H = np.zeros((d, d))
     f = frame[lat]
-    for r, (c, j) in enumerate(rows):
+    for r, (period, c, j) in enumerate(rows):
         delta = (c - f) % period
-        delta = np.where(delta > o, delta - period, delta)
+        delta = np.where(delta > period // 2, delta - period, delta)
         t = f + delta
         ok = (t >= 0) & (t < B)
         H[lat[ok], where[t[ok], j]] = HV[r, lat[ok]]
