@@ -308,7 +308,8 @@ def test_emotion_starts_levels_explains_the_clip_as_each_emotion(tiny_model, tin
     from bayesmotion.params import style_to_simplex
 
     trial = tiny_data[tiny_data.labels("emotion").index("happy")]
-    one = bm.infer_emotion(tiny_model, trial, n_steps=60, latent_uncertainty=False)
+    one = bm.infer_emotion(tiny_model, trial, n_steps=60, latent_uncertainty=False,
+                           emotion_starts="nearest")
     many = bm.infer_emotion(tiny_model, trial, n_steps=60, latent_uncertainty=False,
                             emotion_starts="levels")
     K = len(tiny_model.levels["emotion"])

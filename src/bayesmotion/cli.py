@@ -82,10 +82,12 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--likelihood-power", type=float, default=1.0,
                    help="eta of the tempered posterior (from 'evaluate --calibrate')")
     i.add_argument("--emotion-starts", choices=("nearest", "levels", "vertices"),
-                   default="nearest",
-                   help="'levels': also project the clip from each emotion level's frames "
-                        "(K+1 starts, the best kept); 'vertices': choose the level by the "
-                        "Laplace evidence of a projection with the emotion held at each level")
+                   default="vertices",
+                   help="'vertices' (default): choose the level by the Laplace evidence of a "
+                        "projection with the emotion held at each level; 'nearest': one "
+                        "projection from the nearest training frames (about 4x faster); "
+                        "'levels': that start and one from each emotion level's frames, the "
+                        "best optimum kept")
     e = add("evaluate", "leave-one-trial-out emotion inference")
     e.add_argument("model")
     e.add_argument("data")
@@ -93,7 +95,7 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--calibrate", action="store_true",
                    help="also calibrate the likelihood power on the folds (cross-fitted)")
     e.add_argument("--emotion-starts", choices=("nearest", "levels", "vertices"),
-                   default="nearest",
+                   default="vertices",
                    help="projection starts of every inference (see 'infer')")
     e.add_argument("--json", default=None, help="write the result to this JSON file")
     return p

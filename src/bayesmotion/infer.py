@@ -4,11 +4,13 @@
    skeleton by joint names, resampled to the model's frame rate and encoded.
 2. Projection: the latents X*, I* and the clip's style vectors are found jointly by MAP
    (L-BFGS) of the clip's predictive log-density (bayesmotion.infer_density) with the model
-   fixed, starting from the latents of the nearest training frames and the prior-mean style
-   (when the couple is inferred: one start per couple level, the best optimum kept; with
-   ``emotion_starts="levels"`` also one start per emotion level; with "vertices" one
-   projection per emotion level, the level chosen by its Laplace evidence, see
-   bayesmotion.project). L-BFGS runs in coordinates scaled by the exact Hessian diagonal.
+   fixed. By default (``emotion_starts="vertices"``) one projection per emotion level with the
+   emotion held at it, from the latents of the nearest frames of that level's training trials;
+   the level is chosen by its Laplace evidence (bayesmotion.project), then its latents and the
+   free emotion are refined together. With "nearest", one start from the latents of the nearest
+   training frames and the style of most of them; "levels" adds one start per emotion level
+   and keeps the best optimum. When the couple is inferred: one start per couple level, the
+   best optimum kept. L-BFGS runs in coordinates scaled by the exact Hessian diagonal.
    Latent uncertainty: a diagonal Laplace approximation (exact diag H, coloured HVPs).
 3. Style posterior: emcee samples the clip's emotion coordinates (and its couple style when not
    given) on the simplex, with the latents held at their MAP -- i.e. the conditional posterior
@@ -367,7 +369,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                   method: str = "emcee", seed: int = 0, n_walkers: int = 64, n_steps: int = 150,
                   n_draws: int = 4, max_iter: int = 200, latent_uncertainty: bool = True,
                   likelihood_power: float = 1.0,
-                  emotion_starts: str = "nearest") -> EmotionPosterior:
+                  emotion_starts: str = "vertices") -> EmotionPosterior:
     """Posterior over the emotion coordinates of an observed clip.
 
     Args:
@@ -386,27 +388,31 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             out: each of the ``n_draws`` draws runs ``n_steps // n_draws + 50`` steps (the 50
             covering each chain's burn-in), and their samples are pooled.
         max_iter: L-BFGS iterations of the projection (per start). The default keeps a
-            clip under a second, but the projection usually stops at this limit, not at an
-            optimum; the benchmarks use 1000 (on one held-out handshake the best optimum
-            improved by 117 nats from 200 to 1000 iterations and the label went from wrong
-            to right).
+            20-frame handshake under 2 s (session 17, ``benchmarks/infer_speed.py``: median
+            1.73 s with "vertices", 0.50 s with "nearest"), but the projection usually stops
+            at this limit, not at an optimum; the benchmarks use 1000 (on one held-out
+            handshake the best optimum improved by 117 nats from 200 to 1000 iterations and
+            the label went from wrong to right).
         latent_uncertainty: compute the diagonal Laplace sd of the latents.
         likelihood_power: eta in the tempered posterior p(s) p(clip | s)^eta over the styles
             (generalised Bayes). 1, the default, is the plain posterior. Below 1 widens it to
             allow for model misspecification: with many frames the plain posterior is often
             narrower than the distance from its mean to the true label. Choose eta from labelled
             data with :func:`bayesmotion.evaluate.calibrate_hpd_power`.
-        emotion_starts: "nearest" (one projection from the nearest training frames),
-            "levels" (that start plus one per emotion level, from the nearest frames of that
-            level's training trials; the best optimum is kept; K + 1 times the projection's
-            cost) or "vertices" (one projection per level with the emotion held at that
-            level; the level of largest Laplace evidence of the latents is chosen
-            (bayesmotion.project) and its latents and free emotion are refined together;
-            about K + 1 projections plus K Hessians). A better joint optimum is not always the
-            right label: on the built-in handshakes "levels" read two sad trials as neutral
-            (91.7%, session 13); "vertices" compares every level at its own optimum.
-            ``info`` then holds ``level_log_evidence``, ``level_probabilities`` and the
-            Laplace details per level.
+        emotion_starts: "vertices" (the default: one projection per level with the emotion
+            held at that level; the level of largest Laplace evidence of the latents is
+            chosen (bayesmotion.project) and its latents and free emotion are refined
+            together; about K + 1 projections plus K Hessians), "nearest" (one projection from
+            the nearest training frames, about a quarter of the cost) or "levels" (that start
+            plus one per emotion level, from the nearest frames of that level's training
+            trials; the best optimum is kept; K + 1 times the projection's cost). A better
+            joint optimum is not always the right label: on the built-in handshakes "levels"
+            read two sad trials as neutral (91.7%, session 13); "vertices" compares every
+            level at its own optimum (24/24). On generated clips between two emotions (demo
+            model, s in {0, .25, .5, .75, 1}) its mean absolute error in s is 0.030
+            (neutral to happy) and 0.064 (sad to angry), against 0.056 and 0.45 with
+            "nearest" (session 17). With "vertices" ``info`` holds ``level_log_evidence``,
+            ``level_probabilities`` and the Laplace details per level.
     Returns:
         EmotionPosterior.
     """
