@@ -168,3 +168,31 @@ def test_frame_buckets_bound_the_padding():
     assert np.all(sizes[n > 16] < 1.25 * n[n > 16])
     assert _bucket(17) == 20 and _bucket(16) == 16 and _bucket(33) == 40
     assert len(np.unique(sizes[(n > 256) & (n <= 512)])) == 4  # four sizes per doubling
+
+
+def test_projection_rounds_rescale_and_never_worsen(tiny_model, tiny_data, monkeypatch):
+    """_lbfgs: rounds of at most ``round_iter`` iterations, each a jitted L-BFGS call in freshly
+    rescaled coordinates, until ``max_iter``; the result never scores worse than its start and
+    its fields describe the returned point."""
+    from bayesmotion import lbfgs
+    from bayesmotion.project import _lbfgs, _neg_value_and_grad
+
+    params, args, statics = _setup(tiny_model, tiny_data[0], 9, 16)
+    start = float(_neg_value_and_grad(params, *args, **statics)[0])
+    limits = []
+    real = project._scaled_lbfgs
+    monkeypatch.setattr(project, "_scaled_lbfgs",
+                        lambda x, scale, n, *a, **k: limits.append(n) or real(x, scale, n, *a,
+                                                                               **k))
+    p, res = _lbfgs(params, args, statics, 12, round_iter=5)
+    assert res.status == lbfgs.MAX_ITER and res.message == lbfgs.MESSAGES[lbfgs.MAX_ITER]
+    assert limits == [5, 5, 2] and res.nit == 12 and res.nfev >= 12
+    assert res.fun < start
+    assert res.fun == pytest.approx(float(_neg_value_and_grad(p, *args, **statics)[0]),
+                                    rel=1e-12)
+    # run to convergence: it stops before the limit, at a point with a small gradient
+    limits.clear()
+    p, res = _lbfgs(params, args, statics, 5000)
+    assert res.success and res.nit < 5000 and len(limits) == -(-res.nit // 100)
+    value = float(_neg_value_and_grad(p, *args, **statics)[0])
+    assert res.fun == pytest.approx(value, rel=1e-12) and res.fun < start

@@ -21,7 +21,8 @@
    once per clip (bayesmotion.infer_density.style_expansion), so each walker step costs
    O(T P D) instead of O(T N^2).
 
-Arrays are padded to frame buckets so clips of many lengths share compiled functions.
+Arrays are padded to frame buckets (four sizes per doubling, bayesmotion.project._bucket) so
+clips of many lengths share compiled functions.
 """
 
 from __future__ import annotations
@@ -442,7 +443,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
 
 
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
-               latent_uncertainty, likelihood_power=1.0, emotion_starts="nearest"):
+               latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices"):
     import emcee
 
     t0 = time.perf_counter()

@@ -7,8 +7,9 @@ dispatch and on the host. The algorithm is the textbook one (Nocedal & Wright 20
 7.5): the two-loop recursion over the last ``memory`` curvature pairs with the initial scaling
 s'y / y'y, a weak Wolfe line search by bracketing (Lewis & Overton 2013: the step doubled while
 it satisfies Armijo's condition and the slope is still steep, bisected once it fails Armijo),
-and a pair kept only when s'y > 0. Stopping rules follow scipy's L-BFGS-B: the largest gradient
-entry below ``gtol``, or a relative reduction of the objective below ``ftol``.
+and a pair kept only when s'y > 0; after a failed line search the memory is dropped and the
+iteration retried along steepest descent. Stopping rules follow scipy's L-BFGS-B: the largest
+gradient entry below ``gtol``, or a relative reduction of the objective below ``ftol``.
 """
 
 from __future__ import annotations
@@ -20,10 +21,11 @@ import jax
 import jax.numpy as jnp
 
 # status codes
-CONVERGED_GTOL, MAX_ITER, CONVERGED_FTOL, LINE_SEARCH_FAILED = 0, 1, 2, 3
+CONVERGED_GTOL, MAX_ITER, CONVERGED_FTOL, LINE_SEARCH_FAILED, NONFINITE_START = 0, 1, 2, 3, 4
 MESSAGES = {CONVERGED_GTOL: "gradient below gtol", MAX_ITER: "iteration limit reached",
             CONVERGED_FTOL: "relative reduction below ftol",
-            LINE_SEARCH_FAILED: "line search found no decrease"}
+            LINE_SEARCH_FAILED: "line search found no decrease along steepest descent",
+            NONFINITE_START: "the objective is not finite at the start"}
 
 
 class LbfgsResult(NamedTuple):
@@ -75,12 +77,19 @@ def _direction(g, S, Y, rho, n, head):
 
 
 def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int = 10,
-             gtol: float = 1e-5, ftol: float = 2.220446049250313e-09,
+             gtol: float = 1e-5, ftol: float | None = None,
              max_line_search: int = 30, c1: float = 1e-4, c2: float = 0.9) -> LbfgsResult:
     """Minimise ``f`` from ``x0`` (1-D) with ``fun_and_grad(x) -> (f, grad)``; pure JAX (call
     it under ``jit``; ``max_iter`` may be traced). A non-finite value counts as +inf: the line
-    search backs away from it. Returns the last accepted point, never one worse than ``x0``.
+    search backs away from it. When a line search fails with curvature pairs stored, they are
+    dropped and the iteration retried along steepest descent (as L-BFGS-B does); the run stops
+    only when that fails too. Returns the last accepted point, never one worse than ``x0``.
+    ``ftol`` defaults to L-BFGS-B's 2.2e-9 (factr 1e7 in float64), at least 10 machine epsilons
+    of ``x0``'s dtype (float32 on an accelerator).
     """
+    if ftol is None:
+        ftol = max(2.220446049250313e-09, 10.0 * float(jnp.finfo(x0.dtype).eps))
+
     def evaluate(x):
         f, g = fun_and_grad(x)
         ok = jnp.isfinite(f) & jnp.all(jnp.isfinite(g))
@@ -91,7 +100,7 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
     dt = x0.dtype
     state = _State(x0, f0, g0, jnp.zeros((memory, d), dt), jnp.zeros((memory, d), dt),
                    jnp.zeros(memory, dt), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
-                   jnp.asarray(1), jnp.where(jnp.isfinite(f0), -1, LINE_SEARCH_FAILED))
+                   jnp.asarray(1), jnp.where(jnp.isfinite(f0), -1, NONFINITE_START))
     state = state._replace(status=jnp.where(
         (state.status < 0) & (jnp.max(jnp.abs(g0)) <= gtol), CONVERGED_GTOL, state.status))
 
@@ -118,7 +127,8 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
             return (jnp.where(wolfe, t, nxt), lo, hi, jnp.where(wolfe, f_t, f_lo),
                     jnp.where(wolfe, g_t, g_lo), t, k + 1, wolfe.astype(jnp.int32))
 
-        # the first step has unit length, as in L-BFGS-B (no curvature known yet)
+        # no curvature known (the first iteration, or after a reset): a step of at most unit
+        # length, 1 / |p| as in L-BFGS-B when the gradient is longer than 1
         t0 = jnp.where(s.n > 0, 1.0, jnp.minimum(1.0, 1.0 / jnp.linalg.norm(p)))
         c = jax.lax.while_loop(cond, body, (jnp.asarray(t0, dt), jnp.asarray(0.0, dt),
                                             jnp.asarray(jnp.inf, dt), s.f, s.g,
@@ -139,20 +149,23 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
         sv, yv = x_t - s.x, g_t - s.g
         sy = jnp.dot(sv, yv)
         keep = accepted & (sy > 1e-10 * jnp.dot(yv, yv))
-        S = jnp.where(keep, s.S.at[s.head].set(sv), s.S)
-        Y = jnp.where(keep, s.Y.at[s.head].set(yv), s.Y)
-        rho = jnp.where(keep, s.rho.at[s.head].set(1.0 / jnp.where(keep, sy, 1.0)), s.rho)
-        n = jnp.where(keep, jnp.minimum(s.n + 1, memory), s.n)
+        S = s.S.at[s.head].set(jnp.where(keep, sv, s.S[s.head]))
+        Y = s.Y.at[s.head].set(jnp.where(keep, yv, s.Y[s.head]))
+        rho = s.rho.at[s.head].set(jnp.where(keep, 1.0 / jnp.where(keep, sy, 1.0),
+                                             s.rho[s.head]))
+        retry = ~accepted & (s.n > 0)  # drop the memory, try steepest descent next
+        n = jnp.where(keep, jnp.minimum(s.n + 1, memory), jnp.where(retry, 0, s.n))
         head = jnp.where(keep, (s.head + 1) % memory, s.head)
         x = jnp.where(accepted, x_t, s.x)
         f = jnp.where(accepted, f_t, s.f)
         g = jnp.where(accepted, g_t, s.g)
         nit = s.nit + 1
         reduction = (s.f - f) / jnp.maximum(jnp.maximum(jnp.abs(s.f), jnp.abs(f)), 1.0)
-        status = jnp.where(~accepted, LINE_SEARCH_FAILED,
-                           jnp.where(jnp.max(jnp.abs(g)) <= gtol, CONVERGED_GTOL,
-                                     jnp.where(reduction <= ftol, CONVERGED_FTOL,
-                                               jnp.where(nit >= max_iter, MAX_ITER, -1))))
+        status = jnp.where(
+            ~accepted & ~retry, LINE_SEARCH_FAILED,
+            jnp.where(accepted & (jnp.max(jnp.abs(g)) <= gtol), CONVERGED_GTOL,
+                      jnp.where(accepted & (reduction <= ftol), CONVERGED_FTOL,
+                                jnp.where(nit >= max_iter, MAX_ITER, -1))))
         return _State(x, f, g, S, Y, rho, n, head, nit, s.nfev + k, status)
 
     state = state._replace(status=jnp.where((state.status < 0) & (max_iter <= 0), MAX_ITER,

@@ -1,5 +1,6 @@
-"""Projection of an observed clip into a fitted model's latent spaces (pure JAX densities,
-L-BFGS on the host), and the Laplace evidence of each emotion level.
+"""Projection of an observed clip into a fitted model's latent spaces (pure JAX densities and
+L-BFGS, one jitted call per 100-iteration round), and the Laplace evidence of each emotion
+level.
 
 The clip's latents X*, I* and its free style coordinates are found by MAP of the clip's
 predictive log-density (:func:`bayesmotion.infer_density.clip_log_density`) with the model fixed,
@@ -41,8 +42,10 @@ _STATIC = ("int_factors", "dyn_factors", "init_var")
 def _bucket(n: int) -> int:
     """Frames a clip of ``n`` is padded to: 16, then four sizes per doubling (20, 24, 28, 32,
     40, ...). Every density evaluation pays for the padded frames, so the step bounds the waste
-    at a quarter of the real frames (a 17-frame clip costs 20, not 32) while clips of many
-    lengths still share a few compiled functions."""
+    at a quarter of the real frames (a 17-frame clip costs 20, not 32). Each size compiles
+    the projection's functions once per process (about 13 s for a handshake model), so growing
+    prefixes in online inference compile about four times per doubling of the clip, where
+    doubling buckets compiled once."""
     if n <= 16:
         return 16
     step = 1 << max((n - 1).bit_length() - 3, 0)  # a quarter of the doubling n falls in
@@ -141,8 +144,9 @@ def _lbfgs(params, args, statics, max_iter, round_iter: int = ROUND_ITER):
     magnitude above the dynamics' in I. Unscaled, 1000 iterations from the nearest training
     frames got a generated neutral handshake to -7,303 with the emotion held at neutral, where
     the generating latents alone score -9,884; scaled, 300 iterations reach -9,491 (scipy's
-    L-BFGS-B, session 12). Returns
-    (params, scipy result with ``nit`` the total iterations)."""
+    L-BFGS-B, session 12). Returns (params, a scipy ``OptimizeResult`` built from the last
+    round: ``fun`` (inf if never finite), ``nit`` and ``nfev`` summed over the rounds,
+    ``status`` and ``message`` from bayesmotion.lbfgs; no ``jac``)."""
     x0, unravel = ravel_pytree(params)
     x = np.asarray(x0, np.float64)
     V = jnp.asarray(_diag_probes(params, args[0].dyn_lags.shape[0] + 1))
@@ -243,7 +247,7 @@ def _hvps(params, V, P, Ys, mask, fixed, conc, int_factors, dyn_factors, init_va
                                     dyn_factors, init_var)
     _, hvp = jax.linearize(jax.grad(f), z0)
     n, d = V.shape
-    chunk = min(HVP_CHUNK, n)  # fewer probes than a chunk: no padding products
+    chunk = -(-n // -(-n // HVP_CHUNK))  # equal chunks of at most 64: little padding
     m = -(-n // chunk) * chunk
     V = jnp.concatenate([V, jnp.zeros((m - n, d), V.dtype)])
     return jax.lax.map(jax.vmap(hvp), V.reshape(-1, chunk, d)).reshape(m, d)[:n]
