@@ -296,6 +296,9 @@ def test_tempered_posterior_is_wider_and_checked(tiny_model, tiny_data):
     for bad in (0.0, -1.0, float("nan"), float("inf"), "1"):
         with pytest.raises(bm.BayesmotionError, match="likelihood_power"):
             bm.infer_emotion(tiny_model, trial, likelihood_power=bad)
+    for bad in (0, -5, 2.5, True, "200"):  # before: max_iter=0 crashed inside the projection
+        with pytest.raises(bm.BayesmotionError, match="max_iter"):
+            bm.infer_emotion(tiny_model, trial, max_iter=bad)
 
 
 def test_emotion_starts_levels_explains_the_clip_as_each_emotion(tiny_model, tiny_data):

@@ -424,6 +424,9 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                                f"got {emotion_starts!r}")
     if method != "emcee":
         raise BayesmotionError(f"method must be 'emcee', got {method!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
+        raise BayesmotionError(f"max_iter (L-BFGS iterations of the projection) must be a "
+                               f"positive integer, got {max_iter!r}")
     if not (isinstance(likelihood_power, int | float | np.floating | np.integer)
             and not isinstance(likelihood_power, bool)
             and np.isfinite(likelihood_power) and likelihood_power > 0):
