@@ -110,10 +110,10 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
         Returns (t, f, g, evaluations, accepted); without a Wolfe step within the budget, the
         longest step found that satisfies Armijo (if any)."""
         def cond(c):
-            return (c[-1] == 0) & (c[6] < max_line_search)
+            return (c[-1] == 0) & (c[5] < max_line_search)
 
         def body(c):
-            t, lo, hi, f_lo, g_lo, _, k, _ = c
+            t, lo, hi, f_lo, g_lo, k, _ = c
             f_t, g_t = evaluate(s.x + t * p)
             armijo = f_t <= s.f + c1 * t * slope
             steep = jnp.dot(g_t, p) < c2 * slope
@@ -125,16 +125,15 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
             nxt = jnp.where(jnp.isfinite(hi), 0.5 * (lo + hi), 2.0 * lo)
             # done: 1 a Wolfe step at t; the others keep searching
             return (jnp.where(wolfe, t, nxt), lo, hi, jnp.where(wolfe, f_t, f_lo),
-                    jnp.where(wolfe, g_t, g_lo), t, k + 1, wolfe.astype(jnp.int32))
+                    jnp.where(wolfe, g_t, g_lo), k + 1, wolfe.astype(jnp.int32))
 
         # no curvature known (the first iteration, or after a reset): a step of at most unit
         # length, 1 / |p| as in L-BFGS-B when the gradient is longer than 1
         t0 = jnp.where(s.n > 0, 1.0, jnp.minimum(1.0, 1.0 / jnp.linalg.norm(p)))
         c = jax.lax.while_loop(cond, body, (jnp.asarray(t0, dt), jnp.asarray(0.0, dt),
                                             jnp.asarray(jnp.inf, dt), s.f, s.g,
-                                            jnp.asarray(0.0, dt), jnp.asarray(0),
-                                            jnp.asarray(0, jnp.int32)))
-        t, lo, _, f_acc, g_acc, _, k, wolfe = c
+                                            jnp.asarray(0), jnp.asarray(0, jnp.int32)))
+        t, lo, _, f_acc, g_acc, k, wolfe = c
         t_acc = jnp.where(wolfe == 1, t, lo)
         return t_acc, f_acc, g_acc, k, t_acc > 0
 
