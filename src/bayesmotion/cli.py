@@ -85,7 +85,7 @@ def _parser() -> argparse.ArgumentParser:
                    default="vertices",
                    help="'vertices' (default): choose the level by the Laplace evidence of a "
                         "projection with the emotion held at each level; 'nearest': one "
-                        "projection from the nearest training frames (about 4x faster); "
+                        "projection from the nearest training frames (about 3x faster); "
                         "'levels': that start and one from each emotion level's frames, the "
                         "best optimum kept")
     e = add("evaluate", "leave-one-trial-out emotion inference")

@@ -404,7 +404,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             held at that level; the level of largest Laplace evidence of the latents is
             chosen (bayesmotion.project) and its latents and free emotion are refined
             together; about K + 1 projections plus K Hessians), "nearest" (one projection from
-            the nearest training frames, about a quarter of the cost) or "levels" (that start
+            the nearest training frames, about a third of the cost) or "levels" (that start
             plus one per emotion level, from the nearest frames of that level's training
             trials; the best optimum is kept; K + 1 times the projection's cost). A better
             joint optimum is not always the right label: on the built-in handshakes "levels"
