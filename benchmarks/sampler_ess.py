@@ -9,6 +9,9 @@ N = 136), MAP-fitted briefly. The sampled density is ``bayesmotion.posterior.Tar
 * ``emcee_vectorised_factorised``: ``factorise=True``: gamma in its own ensemble, stepped once
   every 4 steps, the other coordinates in a second ensemble that never evaluates the bottom
   layer, each evaluating its block's jitted, vmapped log-density;
+* ``emcee_vectorised_hmc``: ``hmc=True``: the default moves followed by an ensemble-
+  preconditioned HMC step on the hyperparameters and two-level style vectors (fewer steps:
+  each costs about 10x a DE step);
 * ``emcee_loop``: the default run's walkers, steps, moves (DE followed by the style rotations),
   seed and start, but ``vectorize=False`` with the un-vmapped jitted ``Target.logp`` called
   once per walker from Python; burn-in and thinning copied from the vectorised run;
@@ -70,18 +73,21 @@ def _record(method, seconds, chains, acceptance, extra) -> dict:
             "draws_kept": int(chains.shape[0] * chains.shape[1]), **extra}
 
 
-def run_vectorised(fitted, n_steps: int, factorise: bool = False) -> tuple[dict, object]:
+def run_vectorised(fitted, n_steps: int, factorise: bool = False,
+                   hmc: bool = False) -> tuple[dict, object]:
     from bayesmotion.posterior import sample_posterior
 
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
         post = sample_posterior(fitted, n_steps=n_steps, method="emcee", progress=False, seed=0,
-                                factorise=factorise)
+                                factorise=factorise, hmc=hmc)
     info = post.info
-    name = "emcee_vectorised_factorised" if factorise else "emcee_vectorised"
+    name = ("emcee_vectorised" + ("_factorised" if factorise else "")
+            + ("_hmc" if hmc else ""))
     rec = _record(name, info["seconds"], post.chains, post.acceptance,
                   {"n_walkers": info["n_walkers"], "n_steps": n_steps, "burn": info["burn"],
                    "thin": info["thin"], "max_tau": float(np.max(info["tau"])),
+                   "hmc_acceptance": info.get("hmc_acceptance"),
                    "warnings": [str(x.message) for x in w]})
     return rec, post
 
@@ -147,11 +153,15 @@ def run_nuts(fitted, n_steps: int) -> dict:
 
 def eval_costs(fitted, repeats: int) -> dict:
     """Seconds of one vectorised ensemble step (all walkers) and one gradient of the target."""
+    from types import SimpleNamespace
+
+    import emcee
     import jax
     import jax.numpy as jnp
     from _common import block, timeit
 
-    from bayesmotion.posterior import Target
+    from bayesmotion.moves import EnsembleHMC
+    from bayesmotion.posterior import Target, _default_moves
 
     def step_s(t, W):
         xs = jnp.asarray(t.x0 + 1e-3 * rng.standard_normal((W, t.ndim)))
@@ -171,6 +181,11 @@ def eval_costs(fitted, repeats: int) -> dict:
     x0 = jnp.asarray(target.x0)
     # suggested alternative to vmap: walkers one after another inside one jitted call
     mapped = jax.jit(lambda xs: jax.lax.map(target._logp, xs))
+    # hmc=True adds one EnsembleHMC step (mean 3 leapfrog steps) on the non-rotated block
+    hmc = next(m for m in _default_moves(target, hmc=True).moves if isinstance(m, EnsembleHMC))
+    hmc.n_leapfrog = (3, 3)
+    fake = SimpleNamespace(random=np.random.RandomState(0))
+    state = emcee.State(np.asarray(xs), log_prob=np.asarray(target.logp_batch(xs)))
     return {"ndim": target.ndim, "n_walkers": W, "N": int(fitted.data.lengths.sum()),
             "ensemble_step_s": timeit(lambda: block(target.logp_batch(xs)), repeats,
                                       warmup=1)["median_s"],
@@ -178,6 +193,8 @@ def eval_costs(fitted, repeats: int) -> dict:
             "ensemble_step_lax_map_s": timeit(lambda: block(mapped(xs)), repeats,
                                               warmup=1)["median_s"],
             "gradient_s": timeit(lambda: block(grad(x0)), repeats, warmup=1)["median_s"],
+            "hmc_move_s": timeit(lambda: hmc.propose(fake, state), repeats,
+                                 warmup=1)["median_s"],
             "single_logp_s": timeit(lambda: block(target.logp(x0)), repeats,
                                     warmup=1)["median_s"]}
 
@@ -186,22 +203,27 @@ def run(quick: bool) -> dict:
     from _common import headline
 
     steps = 100 if quick else 1000
+    hmc_steps = 30 if quick else 300  # a step costs ~10x a DE step and mixes much faster
     nuts_steps = 100 if quick else 500
     fit_iter = 20 if quick else 200
     small = fit(1, 10.0, fit_iter)
     vec, post = run_vectorised(small, steps)
     fact, _ = run_vectorised(small, steps, factorise=True)
+    with_hmc, _ = run_vectorised(small, hmc_steps, hmc=True)
     loop = run_loop(post, steps)
     nuts = run_nuts_child(small, nuts_steps, NUTS_TIMEOUT_S["quick" if quick else "full"])
     methods = {"emcee_vectorised": vec, "emcee_vectorised_factorised": fact,
-               "emcee_loop": loop, "nuts": nuts}
+               "emcee_vectorised_hmc": with_hmc, "emcee_loop": loop, "nuts": nuts}
     # projection to the full built-in model
     big = fit(3, 20.0, 3)
     c_small, c_big = eval_costs(small, 5), eval_costs(big, 2 if quick else 3)
     proj = {"emcee_vectorised": vec["projected_s_to_1000_ess"] * c_big["ensemble_step_s"]
             / c_small["ensemble_step_s"],
             "emcee_vectorised_factorised": fact["projected_s_to_1000_ess"]
-            * c_big["factorised_step_s"] / c_small["factorised_step_s"]}
+            * c_big["factorised_step_s"] / c_small["factorised_step_s"],
+            "emcee_vectorised_hmc": with_hmc["projected_s_to_1000_ess"]
+            * (c_big["ensemble_step_s"] + c_big["hmc_move_s"])
+            / (c_small["ensemble_step_s"] + c_small["hmc_move_s"])}
     if not nuts["timed_out"]:
         proj["nuts"] = (nuts["projected_s_to_1000_ess"] * c_big["gradient_s"]
                         / c_small["gradient_s"])
@@ -229,7 +251,8 @@ def run(quick: bool) -> dict:
     return {
         "settings": {"small_model": "load_handshakes(fps=10, n_repetitions=1): 8 trials",
                      "fit_max_iter_small": fit_iter,
-                     "emcee_steps": steps, "nuts_warmup_and_samples": nuts_steps,
+                     "emcee_steps": steps, "emcee_hmc_steps": hmc_steps,
+                     "nuts_warmup_and_samples": nuts_steps,
                      "nuts_chains": 2, "seed": 0, "quick": quick,
                      "builtin_model": "load_handshakes(): 24 trials, fitted 3 iterations "
                                       "(cost measurement only)"},
