@@ -123,3 +123,22 @@ def test_demo_quick_writes_every_file(tmp_path):
                         (out / "report.html").as_uri()], capture_output=True, text=True,
                        timeout=120)
     assert shot.exists() and shot.stat().st_size > 10_000, r.stderr[-1000:]
+
+
+def test_sample_passes_its_sampler_flags(tmp_path, tiny_model, monkeypatch):
+    import bayesmotion.posterior as posterior
+
+    seen = {}
+
+    def fake(model, **kw):
+        seen.update(kw)
+        raise RuntimeError("stop")  # stop before sampling: only the arguments are checked
+
+    monkeypatch.setattr(posterior, "sample_posterior", fake)
+    model = tmp_path / "m.npz"
+    tiny_model.save(model)
+    for flags, want in (([], (False, False)), (["--hmc"], (True, False)),
+                        (["--factorise"], (False, True))):
+        seen.clear()
+        assert main(["sample", str(model), "--out", str(tmp_path / "p.nc"), *flags]) != 0
+        assert (seen["hmc"], seen["factorise"]) == want
