@@ -212,7 +212,9 @@ def test_sample_posterior_with_hmc_blocks_keeps_log_density_exact(three_emotion_
     assert np.all(np.ptp(post.chains, axis=1) > 0)
 
 
-def test_hmc_flag_refuses_user_moves(tiny_model):
+def test_hmc_flag_refuses_user_moves_and_nuts(tiny_model):
     with pytest.raises(bm.BayesmotionError, match="hmc=True"):
         sample_posterior(tiny_model, n_steps=10, progress=False, hmc=True,
                          moves=emcee.moves.DEMove())
+    with pytest.raises(bm.BayesmotionError, match="NUTS is already Hamiltonian"):
+        sample_posterior(tiny_model, n_steps=10, progress=False, hmc=True, method="nuts")

@@ -342,7 +342,7 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             rotations do not move (the hyperparameters and two-level style vectors: nearly
             Gaussian but strongly correlated, where DE crawls, autocorrelation time ~300 steps
             at the demo size), one on the rotated style vectors (heavy-tailed: smaller steps).
-            A step costs about 18x a DE step at the demo size (8.4 s against 0.46 s: 3
+            A step costs about 18x a DE step at the demo size (8.4 s against 0.46 s: about 4
             gradients per walker and block). In a 60-step demo-size probe (session 18) the
             hyperparameters reached R-hat 1.09-1.28 and bulk ESS 180-440 after 40 kept steps,
             which the default moves reach only after thousands; per second the slowest
@@ -357,6 +357,9 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         # emcee discards burn of its n_steps; NUTS warms up for burn steps before n_steps draws
         raise BayesmotionError(f"burn must be in [0, n_steps = {n_steps}) for emcee and >= 0 "
                                f"for NUTS, got {burn}")
+    if hmc and method != "emcee":
+        raise BayesmotionError(f"hmc=True adds HMC steps to emcee's moves; method={method!r} "
+                               f"does not use them (NUTS is already Hamiltonian)")
     if hmc and moves is not None:
         raise BayesmotionError("hmc=True adds EnsembleHMC to the default moves; with your own "
                                "moves, add bayesmotion.moves.EnsembleHMC to them instead")
