@@ -190,6 +190,8 @@ def test_ensemble_hmc_validates_its_arguments():
         EnsembleHMC(_gauss_logp, [])
     with pytest.raises(ValueError, match="n_leapfrog"):
         EnsembleHMC(_gauss_logp, [0], n_leapfrog=(3, 2))
+    with pytest.raises(ValueError, match="step_size"):
+        EnsembleHMC(_gauss_logp, [0], jitter=(0.0, 1.0))
     with pytest.raises(ValueError, match="shrinkage"):
         EnsembleHMC(_gauss_logp, [0], shrinkage=2.0)
     with pytest.raises(ValueError, match="at least one move"):
