@@ -440,13 +440,14 @@ def _default_moves(target, hmc: bool = False):
 
 
 def _move_stats(moves) -> dict:
-    """Acceptance of the style rotations and of the HMC block (None where absent)."""
+    """Acceptance of the style rotations and of the HMC blocks, in the order they run (None
+    where absent)."""
     found = {}
     stack = [moves]
     while stack:
         m = stack.pop()
         if isinstance(m, Sequence):
-            stack.extend(m.moves)
+            stack.extend(reversed(m.moves))  # popped in the order they run
         elif isinstance(m, StyleRotations):
             found["rotation_acceptance"] = m.acceptance
             stack.append(m.inner)
