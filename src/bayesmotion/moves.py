@@ -205,7 +205,6 @@ class EnsembleHMC(emcee.moves.Move):
         self.shrinkage = float(shrinkage)
         self._tries = 0
         self._accepts = 0
-        self._vg = jax.jit(jax.vmap(jax.value_and_grad(logp)))
         self._trajectory = jax.jit(_leapfrog_fn(jax.vmap(jax.value_and_grad(logp)),
                                                 jnp.asarray(block)))
 
@@ -227,14 +226,11 @@ class EnsembleHMC(emcee.moves.Move):
             r0 = model.random.randn(len(moving), self.block.size)
             eps = self.step_size * model.random.uniform(*self.jitter, size=len(moving))
             steps = model.random.randint(self.n_leapfrog[0], self.n_leapfrog[1] + 1)
-            xs = jnp.asarray(x[moving])
-            lp0, g0 = self._vg(xs)
-            x1, lp1, r1 = self._trajectory(xs, lp0, g0, jnp.asarray(r0), jnp.asarray(chol),
-                                           jnp.asarray(eps), steps)
-            x1, lp1, r1 = np.asarray(x1), np.asarray(lp1), np.asarray(r1)
+            lp0, x1, lp1, r1 = (np.asarray(v) for v in self._trajectory(
+                jnp.asarray(x[moving]), jnp.asarray(r0), jnp.asarray(chol), jnp.asarray(eps),
+                steps))
             with np.errstate(invalid="ignore", over="ignore"):
-                log_ratio = (lp1 - 0.5 * np.sum(r1 ** 2, 1)) - (np.asarray(lp0)
-                                                                 - 0.5 * np.sum(r0 ** 2, 1))
+                log_ratio = (lp1 - 0.5 * np.sum(r1 ** 2, 1)) - (lp0 - 0.5 * np.sum(r0 ** 2, 1))
             u = np.log(model.random.rand(len(moving)))
             take = np.isfinite(log_ratio) & np.isfinite(lp1) & (u < log_ratio)
             rows = moving[take]
@@ -260,11 +256,13 @@ class EnsembleHMC(emcee.moves.Move):
 
 
 def _leapfrog_fn(value_and_grad, block):
-    """(x, lp, g, r, chol, eps, steps) -> (x, lp, r) after ``steps`` leapfrog steps in the
-    whitened block coordinates z, x_block = chol z + const (gradient chol^T g_block)."""
+    """(x, r, chol, eps, steps) -> (lp at x, x', lp at x', r') after ``steps`` leapfrog steps in
+    the whitened block coordinates z, x_block = chol z + const (gradient chol^T g_block); one
+    compiled function, the start's value and gradient included."""
 
-    def run(x, lp, g, r, chol, eps, steps):
+    def run(x, r, chol, eps, steps):
         e = eps[:, None]
+        lp0, g = value_and_grad(x)
 
         def body(_, carry):
             x, lp, g, r = carry
@@ -274,8 +272,8 @@ def _leapfrog_fn(value_and_grad, block):
             r = r + 0.5 * e * (g[:, block] @ chol)
             return x, lp, g, r
 
-        x, lp, _, r = jax.lax.fori_loop(0, steps, body, (x, lp, g, r))
-        return x, lp, r
+        x, lp, _, r = jax.lax.fori_loop(0, steps, body, (x, lp0, g, r))
+        return lp0, x, lp, r
 
     return run
 
