@@ -10,9 +10,22 @@ import numpy as np
 import pytest
 
 import bayesmotion as bm
-from bayesmotion.moves import EnsembleHMC, Sequence, StyleRotations, plane_rotations, style_slices
+from bayesmotion.moves import (
+    EnsembleHMC,
+    IndependenceMove,
+    Sequence,
+    StyleRotations,
+    plane_rotations,
+    style_slices,
+)
 from bayesmotion.params import simplex_to_style, style_log_jacobian, style_to_simplex
-from bayesmotion.posterior import ChainTooShortWarning, Target, sample_posterior
+from bayesmotion.posterior import (
+    ChainTooShortWarning,
+    Target,
+    _default_moves,
+    _independence_block,
+    sample_posterior,
+)
 
 
 @pytest.fixture(scope="module")
@@ -106,6 +119,12 @@ def test_sample_posterior_rotates_style_vectors_and_keeps_log_density_exact(thre
         post = sample_posterior(three_emotion_model, n_steps=40, burn=10, thin=1, seed=0,
                                 progress=False)
     assert 0.05 < post.info["rotation_acceptance"] < 0.95
+    # the default independence step ran, after its 10 adaptation steps, on every coordinate the
+    # rotations do not move
+    assert post.info["adapt_steps"] == 10 and 0.02 < post.info["independence_acceptance"] < 1
+    rotated = {int(i) for idx, _ in _default_moves(post.target).blocks for i in idx}
+    block = _independence_block(post.target, post.target.laplace(post.target.x0))
+    assert set(range(post.target.ndim)) - rotated <= set(block.tolist())
     x = post.chains[:3, -1]
     fresh = np.asarray(post.target.logp_batch(jnp.asarray(x)))
     np.testing.assert_allclose(post.log_prob[:3, -1], fresh, rtol=1e-9)
@@ -220,3 +239,86 @@ def test_hmc_flag_refuses_user_moves_and_nuts(tiny_model):
                          moves=emcee.moves.DEMove())
     with pytest.raises(bm.BayesmotionError, match="NUTS is already Hamiltonian"):
         sample_posterior(tiny_model, n_steps=10, progress=False, hmc=True, method="nuts")
+
+
+# ------------------------------------------------------------------ independence Metropolis
+class _LPModel(_Model):
+    """emcee's model interface as the independence move uses it: a generator and a batched
+    log-density returning (log_prob, blobs)."""
+
+    def __init__(self, seed, logp):
+        super().__init__(seed)
+        self._lp = jax.jit(jax.vmap(logp))
+        self.calls = 0
+
+    def compute_log_prob_fn(self, xs):
+        self.calls += 1
+        return np.asarray(self._lp(jnp.asarray(xs))), None
+
+
+def test_independence_move_keeps_an_exact_target_with_a_wrong_proposal():
+    # exact iid draws stay exact under an invariant kernel, even when the proposal's centre and
+    # scale are off (a kernel that accepted every proposal would hand back the proposal's
+    # moments: mean shifted by 0.7 sd, variances 2.25x)
+    rng = np.random.default_rng(0)
+    n = 4000
+    x0 = np.c_[rng.multivariate_normal(_MEAN, _COV, n), rng.logistic(size=n)]
+    sd = np.sqrt(np.diag(_COV))
+    move = IndependenceMove([0, 1, 2], _MEAN + 0.7 * sd, 2.25 * _COV, df=10.0)
+    model = _LPModel(1, _gauss_logp)
+    state = emcee.State(x0, log_prob=np.asarray(jax.vmap(_gauss_logp)(jnp.asarray(x0))))
+    for _ in range(4):
+        state, acc = move.propose(model, state)
+    assert model.calls == 4  # one batched evaluation per step
+    assert 0.2 < move.acceptance < 0.9 and acc.dtype == bool
+    x = state.coords
+    np.testing.assert_array_equal(x[:, 3], x0[:, 3])
+    assert np.mean(x[:, 0] != x0[:, 0]) > 0.5
+    se = sd / np.sqrt(n)
+    assert np.all(np.abs(x[:, :3].mean(0) - _MEAN) < 4.5 * se)
+    np.testing.assert_allclose(np.cov(x[:, :3].T), _COV, rtol=0.12, atol=0.02 * np.abs(_COV).max())
+    np.testing.assert_allclose(state.log_prob, np.asarray(jax.vmap(_gauss_logp)(
+        jnp.asarray(x))), rtol=1e-12, atol=1e-9)
+
+
+def test_independence_move_in_emcee_mixes_a_correlated_block_in_a_few_steps():
+    rng = np.random.default_rng(3)
+    W = 24
+    start = np.c_[_MEAN + 5.0 + 1e-3 * rng.standard_normal((W, 3)), rng.logistic(size=W)]
+    move = Sequence(emcee.moves.DEMove(), IndependenceMove([0, 1, 2], _MEAN, 1.3 * _COV))
+    lp = jax.jit(jax.vmap(_gauss_logp))
+    sampler = emcee.EnsembleSampler(W, 4, lambda xs: np.asarray(lp(jnp.asarray(xs))),
+                                    vectorize=True, moves=move)
+    sampler.run_mcmc(emcee.State(start, random_state=np.random.RandomState(0).get_state()),
+                     1500, progress=False)
+    chain = sampler.get_chain(discard=100)
+    tau = emcee.autocorr.integrated_time(chain, quiet=True)
+    assert np.all(tau[:3] < 4)
+    flat = chain.reshape(-1, 4)
+    mcse = np.sqrt(np.diag(_COV) * tau[:3] / len(flat))
+    assert np.all(np.abs(flat[:, :3].mean(0) - _MEAN) < 4.0 * mcse)
+    np.testing.assert_allclose(flat[:, :3].std(0), np.sqrt(np.diag(_COV)), rtol=0.05)
+
+
+def test_independence_move_rejects_non_finite_proposals_and_validates_arguments():
+    def walled(x):
+        return jnp.where(x[0] < 1.5, _gauss_logp(x), -jnp.inf)
+
+    rng = np.random.default_rng(0)
+    x0 = np.c_[rng.multivariate_normal(_MEAN, _COV, 400), rng.logistic(size=400)]
+    x0 = x0[x0[:, 0] < 1.5][:200]
+    move = IndependenceMove([0, 1, 2], _MEAN, _COV)
+    state = emcee.State(x0, log_prob=np.asarray(jax.vmap(walled)(jnp.asarray(x0))))
+    for _ in range(3):
+        state, _ = move.propose(_LPModel(2, walled), state)
+    assert np.all(state.coords[:, 0] < 1.5) and np.all(np.isfinite(state.log_prob))
+    assert move.acceptance > 0.2
+    with pytest.raises(ValueError, match="non-empty block"):
+        IndependenceMove([], [], np.zeros((0, 0)))
+    with pytest.raises(ValueError, match=r"mean must have shape \(2,\)"):
+        IndependenceMove([0, 1], [0.0], np.eye(2))
+    with pytest.raises(ValueError, match="positive definite"):
+        IndependenceMove([0, 1], [0.0, 0.0], -np.eye(2))
+    with pytest.raises(ValueError, match="df"):
+        IndependenceMove([0], [0.0], np.eye(1), df=0.0)
+

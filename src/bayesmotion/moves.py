@@ -33,7 +33,8 @@ from jax.flatten_util import ravel_pytree
 
 from .params import STYLE_PREFIX, simplex_to_style, style_log_jacobian, style_to_simplex
 
-__all__ = ["EnsembleHMC", "Sequence", "StyleRotations", "plane_rotations", "style_slices"]
+__all__ = ["EnsembleHMC", "IndependenceMove", "Sequence", "StyleRotations", "plane_rotations",
+           "style_slices"]
 
 # over walkers, compiled once per shape (not per sampler)
 _TO_S = jax.jit(jax.vmap(style_to_simplex))
@@ -276,6 +277,97 @@ def _leapfrog_fn(value_and_grad, block):
         return lp0, x, lp, r
 
     return run
+
+
+class _BlockMH(emcee.moves.MHMove):
+    """A Metropolis-Hastings move on a block of coordinates (the others held: a Gibbs block
+    update) with a multivariate proposal of scale matrix ``cov``; counts its acceptance."""
+
+    def __init__(self, block, cov):
+        block = np.asarray(block, dtype=int).ravel()
+        name = type(self).__name__
+        if not block.size:
+            raise ValueError(f"{name} needs a non-empty block of coordinates")
+        cov = np.atleast_2d(np.asarray(cov, dtype=float))
+        if cov.shape != (block.size, block.size):
+            raise ValueError(f"cov must have shape ({block.size}, {block.size}) for a block "
+                             f"of {block.size} coordinates, got {cov.shape}")
+        try:
+            self._chol = np.linalg.cholesky(0.5 * (cov + cov.T))
+        except np.linalg.LinAlgError:
+            raise ValueError(f"{name}: cov must be symmetric positive definite") from None
+        self.block = block
+        self._tries = 0
+        self._accepts = 0
+        super().__init__(self._propose)
+
+    @property
+    def acceptance(self) -> float:
+        return self._accepts / self._tries if self._tries else float("nan")
+
+    def propose(self, model, state):
+        # emcee's update writes into the state's arrays: work on copies
+        blobs = None if state.blobs is None else np.array(state.blobs)
+        state = emcee.State(np.array(state.coords, dtype=float),
+                            log_prob=np.array(state.log_prob, dtype=float), blobs=blobs,
+                            random_state=state.random_state)
+        state, accepted = super().propose(model, state)
+        self._tries += len(accepted)
+        self._accepts += int(np.sum(accepted))
+        return state, accepted
+
+
+class IndependenceMove(_BlockMH):
+    """Independence Metropolis on a block of coordinates, with a fixed multivariate-t proposal.
+
+    Every walker proposes new ``block`` coordinates (the others held: a Gibbs block update)
+    drawn from a multivariate t with ``df`` degrees of freedom, location ``mean`` and scale
+    matrix ``cov``, whatever its current position, and accepts with the Metropolis-Hastings
+    ratio ``p(x') q(x) / (p(x) q(x'))``. The proposal is fixed, so the move leaves the target
+    invariant. It costs one log-density per walker and step, as a DE step does, but an accepted
+    proposal is a fresh draw, not a small step: where the block's conditional posterior is close
+    to the t (near-Gaussian, however correlated), the autocorrelation time is about
+    2 / acceptance - 1. Where the block's conditional posterior differs from the proposal (the
+    tails, or where the other coordinates shift it), a walker is rarely accepted and "sticks"
+    until another move (DE) takes it back: at the demo size 5% of the posterior's states accept
+    under 0.2% of proposals.
+
+    A proposal fitted to the other half of the ensemble (red-blue, as emcee's moves) was tried
+    at the demo size: with 27 walkers per half, the 14-dimensional covariance is too noisy, and
+    5% of proposals were accepted, against 25% with the Laplace approximation's covariance.
+
+    Args:
+        block: flat indices of the coordinates moved.
+        mean: (len(block),) location of the proposal.
+        cov: (len(block), len(block)) scale matrix, symmetric positive definite.
+        df: degrees of freedom of the t (> 0); large values approach a Gaussian.
+
+    ``acceptance`` holds the fraction of accepted proposals so far.
+    """
+
+    def __init__(self, block, mean, cov, df: float = 20.0):
+        super().__init__(block, cov)
+        mean = np.asarray(mean, dtype=float).ravel()
+        if mean.shape != self.block.shape:
+            raise ValueError(f"mean must have shape ({self.block.size},) for a block of "
+                             f"{self.block.size} coordinates, got {mean.shape}")
+        if not df > 0:
+            raise ValueError(f"df must be > 0, got {df!r}")
+        self.mean = mean
+        self.df = float(df)
+
+    def log_q(self, z) -> np.ndarray:
+        """Log-density of the proposal at rows ``z`` of block coordinates, up to a constant."""
+        w = np.linalg.solve(self._chol, (np.atleast_2d(z) - self.mean).T)
+        return -0.5 * (self.df + self.block.size) * np.log1p(np.sum(w ** 2, 0) / self.df)
+
+    def _propose(self, coords, random):
+        x = np.asarray(coords, dtype=float)
+        n, d = x.shape[0], self.block.size
+        scale = np.sqrt(self.df / random.chisquare(self.df, size=n))
+        new = x.copy()
+        new[:, self.block] = self.mean + scale[:, None] * (random.randn(n, d) @ self._chol.T)
+        return new, self.log_q(x[:, self.block]) - self.log_q(new[:, self.block])
 
 
 class Sequence(emcee.moves.Move):
