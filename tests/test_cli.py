@@ -137,8 +137,9 @@ def test_sample_passes_its_sampler_flags(tmp_path, tiny_model, monkeypatch):
     monkeypatch.setattr(posterior, "sample_posterior", fake)
     model = tmp_path / "m.npz"
     tiny_model.save(model)
-    for flags, want in (([], (False, False)), (["--hmc"], (True, False)),
-                        (["--factorise"], (False, True))):
+    for flags, want in (([], (False, False, None)), (["--hmc"], (True, False, None)),
+                        (["--factorise"], (False, True, None)),
+                        (["--no-independence"], (False, False, False))):
         seen.clear()
         assert main(["sample", str(model), "--out", str(tmp_path / "p.nc"), *flags]) != 0
-        assert (seen["hmc"], seen["factorise"]) == want
+        assert (seen["hmc"], seen["factorise"], seen["independence"]) == want

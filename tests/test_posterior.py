@@ -26,6 +26,10 @@ class GaussianTarget:
         self._logp = lambda x: -0.5 * jnp.sum(((x - self.mu) / self.sd) ** 2)
         self.logp_batch = jax.jit(jax.vmap(self._logp))
 
+    def laplace(self, centre):
+        """Inverse of the negative log-density's Hessian (the independence move's start)."""
+        return np.linalg.inv(-np.asarray(jax.hessian(self._logp)(jnp.asarray(centre))))
+
 
 def test_emcee_wrapper_recovers_known_mean_and_variance():
     mu, sd = np.array([1.0, -2.0, 0.5]), np.array([0.5, 2.0, 1.0])
@@ -51,9 +55,12 @@ class LogitBetaTarget(GaussianTarget):
         self.logp_batch = jax.jit(jax.vmap(self._logp))
 
 
-def test_default_moves_leave_a_skewed_target_invariant():
-    # emcee 3.1.6's DESnookerMove fails this (sd 0.88 for 1.32); the default moves with
-    # hmc=True (DE, then ensemble HMC on every coordinate: no style vectors here) must not
+@pytest.mark.parametrize("hmc, independence", [(True, False), (False, True)])
+def test_default_moves_leave_a_skewed_target_invariant(hmc, independence):
+    # emcee 3.1.6's DESnookerMove fails this (sd 0.88 for 1.32); the default moves must not,
+    # with hmc=True (DE, then ensemble HMC on every coordinate: no style vectors here) or the
+    # independence step (DE, then an independence step on every coordinate, the proposal
+    # adapted after 150 steps: a t-shaped proposal on a skewed target)
     from scipy import integrate
     from scipy.special import log_expit
 
@@ -66,8 +73,12 @@ def test_default_moves_leave_a_skewed_target_invariant():
         warnings.simplefilter("ignore", ChainTooShortWarning)
         post = _run_emcee(LogitBetaTarget(d, a), np.full(d, mean), n_walkers=32, n_steps=4000,
                           burn=500, thin=1, seed=0, backend=None, progress=False, init="ball",
-                          ball=sd, moves=None, hmc=True)
-    assert 0.3 < post.info["hmc_acceptance"] < 1.0  # the HMC step did run
+                          ball=sd, moves=None, hmc=hmc, independence=independence)
+    if hmc:
+        assert 0.3 < post.info["hmc_acceptance"] < 1.0  # the HMC step did run
+    else:  # the step ran, and the burn-in covers the adaptation
+        assert 0.02 < post.info["independence_acceptance"] < 1.0
+        assert post.info["adapt_steps"] == 150 and post.info["burn"] == 500
     x = post.chains.reshape(-1, d)
     n_eff = x.shape[0] / post.info["tau"].max()
     # pooled over the d iid coordinates: relative error of the sd about 1 / sqrt(2 n_eff d)
@@ -109,7 +120,7 @@ RESUME_SCRIPT = textwrap.dedent("""
     warnings.simplefilter("ignore")
     m = bm.load(sys.argv[1])
     bm.sample_posterior(m, n_steps=int(sys.argv[3]), backend=sys.argv[2], progress=False,
-                        burn=1, thin=1)
+                        burn=100, thin=1)
 """)
 
 
@@ -145,19 +156,21 @@ def test_killed_run_resumes_from_hdf5_without_losing_samples(tiny_model, tmp_pat
                 break
     proc.wait()
     assert proc.returncode != 0 and proc.returncode == -9, "the child must die by our SIGKILL"
-    assert 0 < done_before < n, "the run should have been killed part-way"
+    # killed before the independence move's 100 adaptation steps ended: the resumed run
+    # finishes the adaptation, then fits the second phase's proposal from the file
+    assert 0 < done_before < 100, "the run should have been killed during the adaptation"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
-        post = bm.sample_posterior(tiny_model, n_steps=n, backend=h5, progress=False, burn=1,
+        post = bm.sample_posterior(tiny_model, n_steps=n, backend=h5, progress=False, burn=100,
                                    thin=1)
-    assert post.info["n_steps"] == n
+    assert post.info["n_steps"] == n and post.info["adapt_steps"] == 100
     assert emcee.backends.HDFBackend(str(h5), read_only=True).iteration == n
-    assert post.chains.shape[1] == n - 1  # burn 1, thin 1
+    assert post.chains.shape[1] == n - 100  # burn 100, thin 1
     # and the killed-and-resumed chain is the uninterrupted one: emcee resumed from the saved
     # step and random state
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
-        whole = bm.sample_posterior(tiny_model, n_steps=n, progress=False, burn=1, thin=1)
+        whole = bm.sample_posterior(tiny_model, n_steps=n, progress=False, burn=100, thin=1)
     np.testing.assert_array_equal(post.chains, whole.chains)
 
 
@@ -242,14 +255,14 @@ def test_resuming_a_file_written_for_another_model_is_refused(tiny_model, tmp_pa
     h5 = tmp_path / "chain.h5"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
-        bm.sample_posterior(tiny_model, n_steps=12, backend=h5, progress=False, burn=1, thin=1)
-        same = bm.sample_posterior(tiny_model, n_steps=16, backend=h5, progress=False, burn=1,
+        bm.sample_posterior(tiny_model, n_steps=12, backend=h5, progress=False, burn=3, thin=1)
+        same = bm.sample_posterior(tiny_model, n_steps=16, backend=h5, progress=False, burn=4,
                                    thin=1)  # the same model resumes
     assert same.info["n_steps"] == 16
     other = bm.HGPDM(latent_dim=3, interaction_dim=3).fit(make_tiny_dataset(), max_iter=5,
                                                           progress=False)
     with pytest.raises(bm.BayesmotionError, match="another posterior"):
-        bm.sample_posterior(other, n_steps=20, backend=h5, progress=False, burn=1, thin=1)
+        bm.sample_posterior(other, n_steps=20, backend=h5, progress=False, burn=5, thin=1)
 
 
 def test_an_impossible_burn_is_refused_before_sampling(tiny_model, monkeypatch):
@@ -330,3 +343,39 @@ def test_a_joint_chain_file_is_not_resumed_by_the_factorised_sampler(tiny_model,
     with pytest.raises(bm.BayesmotionError, match="holds a run of shape"):
         bm.sample_posterior(tiny_model, n_steps=8, backend=h5, progress=False, burn=1, thin=1,
                             factorise=True)
+
+
+def test_independence_flag_and_burn_are_checked_before_sampling(tiny_model, monkeypatch):
+    import emcee
+
+    def no_target(*a, **k):
+        raise AssertionError("the sampler was set up before the arguments were checked")
+
+    monkeypatch.setattr("bayesmotion.posterior.Target", no_target)
+    for bad in ({"method": "nuts"}, {"moves": emcee.moves.DEMove()}, {"factorise": True}):
+        with pytest.raises(bm.BayesmotionError, match="independence=True adds steps"):
+            bm.sample_posterior(tiny_model, n_steps=100, progress=False, independence=True,
+                                **bad)
+    # the default's adaptation (a quarter of the chain, at most 150 steps) is part of the burn-in
+    with pytest.raises(bm.BayesmotionError, match="25 adaptation steps"):
+        bm.sample_posterior(tiny_model, n_steps=100, burn=10, progress=False)
+
+
+def test_a_file_resumes_only_with_the_independence_choice_it_was_written_with(tiny_model,
+                                                                               tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        bm.sample_posterior(tiny_model, n_steps=12, backend=tmp_path / "a.h5", progress=False,
+                            burn=3, thin=1)
+        bm.sample_posterior(tiny_model, n_steps=12, backend=tmp_path / "b.h5", progress=False,
+                            burn=1, thin=1, independence=False)
+        with pytest.raises(bm.BayesmotionError, match="resume it with independence=True"):
+            bm.sample_posterior(tiny_model, n_steps=16, backend=tmp_path / "a.h5",
+                                progress=False, burn=1, thin=1, independence=False)
+        with pytest.raises(bm.BayesmotionError, match="resume it with independence=False"):
+            bm.sample_posterior(tiny_model, n_steps=16, backend=tmp_path / "b.h5",
+                                progress=False, burn=4, thin=1)
+        # a longer resumed run keeps the adaptation length the file was started with
+        post = bm.sample_posterior(tiny_model, n_steps=40, backend=tmp_path / "a.h5",
+                                   progress=False, burn=3, thin=1)
+    assert post.info["adapt_steps"] == 3 and post.info["n_steps"] == 40

@@ -67,6 +67,10 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--hmc", action="store_true",
                    help="add ensemble-preconditioned HMC steps to the default moves "
                         "(sample_posterior(hmc=True)): far fewer steps, each ~18x dearer")
+    s.add_argument("--no-independence", action="store_true",
+                   help="leave out the independence step on the hyperparameters "
+                        "(sample_posterior(independence=False)); the factorised sampler "
+                        "never uses it")
     g = add("generate", "generate handshakes from a model")
     g.add_argument("model")
     g.add_argument("--emotion", default="neutral", help="a label or coordinates, e.g. 0.5,0.5,0,0")
@@ -136,7 +140,8 @@ def _cmd_sample(a):
 
     m = load(a.model)
     post = sample_posterior(m, n_walkers=a.walkers, n_steps=a.steps, backend=a.backend,
-                            factorise=a.factorise, hmc=a.hmc)
+                            factorise=a.factorise, hmc=a.hmc,
+                            independence=False if a.no_independence else None)
     post.to_netcdf(a.out)
     c = convergence(post)
     print(f"wrote {a.out}: max R-hat {c['max_rhat']:.3f}, min bulk ESS {c['min_ess_bulk']:.0f}, "
