@@ -33,8 +33,8 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 CACHE = HERE / ".cache"
-SETTINGS = {"full": {"max_iter": 1000, "steps": 7000,
-                     "checkpoints": [600, 1000, 2000, 3000, 4000, 5000, 6000, 7000]},
+SETTINGS = {"full": {"max_iter": 1000, "steps": 2000,
+                     "checkpoints": [400, 600, 800, 1000, 1200, 1600, 2000]},
             "quick": {"max_iter": 150, "steps": 300, "checkpoints": [100, 200, 300]}}
 TARGET_RHAT, TARGET_ESS = 1.01, 400
 
@@ -49,7 +49,8 @@ def demo_model(max_iter: int):
 
 # part of the cache key, so a chain run with other default moves or coordinates is not resumed:
 # edit it whenever sample_posterior's default moves or sampled coordinates change
-SAMPLER_VERSION = "DE move followed by StyleRotations"
+SAMPLER_VERSION = ("DE move followed by StyleRotations, then an IndependenceMove on the "
+                   "hyperparameters (Laplace proposal, adapted after 150 steps)")
 
 
 def _key(model) -> str:
@@ -60,8 +61,9 @@ def _key(model) -> str:
     return h.hexdigest()[:12]
 
 
-def checkpoint(chain: np.ndarray, n: int) -> dict:
-    """Diagnostics of the first ``n`` steps of an emcee chain (steps, walkers, ndim)."""
+def checkpoint(chain: np.ndarray, n: int, adapt: int = 0) -> dict:
+    """Diagnostics of the first ``n`` steps of an emcee chain (steps, walkers, ndim); the
+    burn-in covers the ``adapt`` steps of the independence move's adaptation."""
     import arviz as az
     import emcee
 
@@ -71,7 +73,7 @@ def checkpoint(chain: np.ndarray, n: int) -> dict:
     with warnings.catch_warnings():  # short heads are expected; steps_over_max_tau says so
         warnings.simplefilter("ignore")
         tau = emcee.autocorr.integrated_time(head, quiet=True)
-        info = _burn_thin(tau, n, None, 1)
+        info = _burn_thin(tau, n, None, 1, min_burn=min(adapt, n - 1))
     kept = np.swapaxes(head[info["burn"]:], 0, 1)  # (walkers, draws, ndim)
     d = az.convert_to_dataset({"theta": kept})
     rhat = np.asarray(az.rhat(d)["theta"])
@@ -88,7 +90,7 @@ def run(quick: bool) -> dict:
     import emcee
     from _common import headline
 
-    from bayesmotion.posterior import sample_posterior
+    from bayesmotion.posterior import _adapt_steps, sample_posterior
 
     cfg = SETTINGS["quick" if quick else "full"]
     t0 = time.perf_counter()
@@ -99,14 +101,14 @@ def run(quick: bool) -> dict:
     resumed_from = (emcee.backends.HDFBackend(str(path), read_only=True).iteration
                     if path.exists() else 0)
     t0 = time.perf_counter()
-    # burn 0, thin 1: every step, for the checkpoints' own burn-in (the factorised sampler's
-    # joint chain is assembled from the file's two groups; the file alone holds them apart)
+    adapt = _adapt_steps(cfg["steps"])
     post = sample_posterior(model, n_steps=cfg["steps"], seed=0, backend=str(path),
-                            progress=False, burn=0, thin=1)
+                            progress=False, burn=adapt, thin=1)
     sample_s = time.perf_counter() - t0
-    chain = np.swapaxes(post.chains, 0, 1)  # (steps, walkers, ndim)
+    # every step, for the checkpoints' own burn-in
+    chain = emcee.backends.HDFBackend(str(path), read_only=True, name="mcmc").get_chain()
     per_step = sample_s / max(cfg["steps"] - resumed_from, 1)
-    points = [checkpoint(chain, n) for n in cfg["checkpoints"] if n <= chain.shape[0]]
+    points = [checkpoint(chain, n, adapt) for n in cfg["checkpoints"] if n <= chain.shape[0]]
     for p in points:
         p["sampling_seconds_from_scratch"] = p["steps"] * per_step
     first = next((p for p in points if p["met"]), None)
@@ -122,6 +124,8 @@ def run(quick: bool) -> dict:
                                          ("iterations", "objective", "converged", "message")},
            "sampling_seconds": sample_s, "resumed_from_step": resumed_from,
            "seconds_per_step": per_step, "acceptance": float(np.mean(post.acceptance)),
+           "independence_acceptance": post.info.get("independence_acceptance"),
+           "adapt_steps": adapt,
            "gamma_acceptance": (float(np.mean(post.info["bottom_acceptance"]))
                                 if post.info.get("factorised") else None),
            "checkpoints": points,

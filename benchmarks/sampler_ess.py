@@ -5,16 +5,20 @@ N = 136), MAP-fitted briefly. The sampled density is ``bayesmotion.posterior.Tar
 (hyperparameters + training style vectors, latents at the MAP).
 
 * ``emcee_vectorised``: ``sample_posterior(fitted, method="emcee")`` with its defaults: one
-  ensemble over every coordinate, the jitted ``vmap``-ped log-density (``vectorize=True``);
+  ensemble over every coordinate, the jitted ``vmap``-ped log-density (``vectorize=True``),
+  DE, style rotations and (since session 19) an independence step on the hyperparameters;
+* ``emcee_vectorised_de``: the same with ``independence=False`` (DE and the rotations only:
+  the moves of ``emcee_loop``);
 * ``emcee_vectorised_factorised``: ``factorise=True``: gamma in its own ensemble, stepped once
   every 4 steps, the other coordinates in a second ensemble that never evaluates the bottom
   layer, each evaluating its block's jitted, vmapped log-density;
 * ``emcee_vectorised_hmc``: ``hmc=True``: the default moves followed by an ensemble-
   preconditioned HMC step on the hyperparameters and two-level style vectors (fewer steps:
   each costs about 10x a DE step);
-* ``emcee_loop``: the default run's walkers, steps, moves (DE followed by the style rotations),
-  seed and start, but ``vectorize=False`` with the un-vmapped jitted ``Target.logp`` called
-  once per walker from Python; burn-in and thinning copied from the vectorised run;
+* ``emcee_loop``: ``emcee_vectorised_de``'s walkers, steps, moves (DE followed by the style
+  rotations), seed and start, but ``vectorize=False`` with the un-vmapped jitted
+  ``Target.logp`` called once per walker from Python; burn-in and thinning copied from the
+  vectorised run;
 * ``nuts``: ``sample_posterior(fitted, method="nuts")`` (numpyro, 2 sequential chains).
 
 ESS: min over coordinates of arviz's bulk ESS (every walker / chain a chain), divided by the
@@ -73,28 +77,29 @@ def _record(method, seconds, chains, acceptance, extra) -> dict:
             "draws_kept": int(chains.shape[0] * chains.shape[1]), **extra}
 
 
-def run_vectorised(fitted, n_steps: int, factorise: bool = False,
-                   hmc: bool = False) -> tuple[dict, object]:
+def run_vectorised(fitted, n_steps: int, factorise: bool = False, hmc: bool = False,
+                   independence: bool | None = None) -> tuple[dict, object]:
     from bayesmotion.posterior import sample_posterior
 
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
         post = sample_posterior(fitted, n_steps=n_steps, method="emcee", progress=False, seed=0,
-                                factorise=factorise, hmc=hmc)
+                                factorise=factorise, hmc=hmc, independence=independence)
     info = post.info
     name = ("emcee_vectorised" + ("_factorised" if factorise else "")
-            + ("_hmc" if hmc else ""))
+            + ("_hmc" if hmc else "") + ("_de" if independence is False else ""))
     rec = _record(name, info["seconds"], post.chains, post.acceptance,
                   {"n_walkers": info["n_walkers"], "n_steps": n_steps, "burn": info["burn"],
                    "thin": info["thin"], "max_tau": float(np.max(info["tau"])),
                    "hmc_acceptance": info.get("hmc_acceptance"),
+                   "independence_acceptance": info.get("independence_acceptance"),
                    "warnings": [str(x.message) for x in w]})
     return rec, post
 
 
 def run_loop(post, n_steps: int) -> dict:
     """emcee with vectorize=False and the un-vmapped jitted logp, same start, moves and
-    settings as the (joint) vectorised run ``post``."""
+    settings as the (joint, ``independence=False``) vectorised run ``post``."""
     import emcee
     import jax.numpy as jnp
 
@@ -207,17 +212,24 @@ def run(quick: bool) -> dict:
     nuts_steps = 100 if quick else 500
     fit_iter = 20 if quick else 200
     small = fit(1, 10.0, fit_iter)
-    vec, post = run_vectorised(small, steps)
+    vec, _ = run_vectorised(small, steps)
+    de, post_de = run_vectorised(small, steps, independence=False)
     fact, _ = run_vectorised(small, steps, factorise=True)
     with_hmc, _ = run_vectorised(small, hmc_steps, hmc=True)
-    loop = run_loop(post, steps)
+    loop = run_loop(post_de, steps)
     nuts = run_nuts_child(small, nuts_steps, NUTS_TIMEOUT_S["quick" if quick else "full"])
-    methods = {"emcee_vectorised": vec, "emcee_vectorised_factorised": fact,
+    methods = {"emcee_vectorised": vec, "emcee_vectorised_de": de,
+               "emcee_vectorised_factorised": fact,
                "emcee_vectorised_hmc": with_hmc, "emcee_loop": loop, "nuts": nuts}
     # projection to the full built-in model
     big = fit(3, 20.0, 3)
     c_small, c_big = eval_costs(small, 5), eval_costs(big, 2 if quick else 3)
+    # a default step evaluates the density twice per walker (DE, independence step), as does
+    # the hmc=True step before its HMC trajectories: the ratio of the two sizes' costs is that
+    # of one evaluation
     proj = {"emcee_vectorised": vec["projected_s_to_1000_ess"] * c_big["ensemble_step_s"]
+            / c_small["ensemble_step_s"],
+            "emcee_vectorised_de": de["projected_s_to_1000_ess"] * c_big["ensemble_step_s"]
             / c_small["ensemble_step_s"],
             "emcee_vectorised_factorised": fact["projected_s_to_1000_ess"]
             * c_big["factorised_step_s"] / c_small["factorised_step_s"],
@@ -237,8 +249,8 @@ def run(quick: bool) -> dict:
         rows.append(headline(f"{name}: min bulk ESS / s (small model, N={c_small['N']})",
                              r["min_ess_bulk_per_s"], "1/s", note=note))
     best = min(proj, key=proj.get)
-    rows.append(headline("  vectorised / loop emcee speed-up",
-                         loop["seconds"] / vec["seconds"], "x",
+    rows.append(headline("  vectorised / loop emcee speed-up (DE and rotations)",
+                         loop["seconds"] / de["seconds"], "x",
                          note=f"built-in model, one ensemble step: vmap "
                               f"{c_big['ensemble_step_s']:.2f} s, lax.map "
                               f"{c_big['ensemble_step_lax_map_s']:.2f} s, loop "
