@@ -378,10 +378,11 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             switches where its first run did. One more log-density per walker and step (a step
             costs about twice a DE step). ``None`` (default): on for the joint emcee sampler
             with the default moves, off otherwise; ``True`` with ``method="nuts"``, user
-            ``moves`` or ``factorise`` raises. At the demo size (session 19, 54 walkers) 25-27%
-            of proposals were accepted and 800 steps (820 s) gave max R-hat 1.085 and min bulk
-            ESS 421, where DE and the rotations alone needed 7,000 steps (3,211 s) for 1.12
-            and 298.
+            ``moves`` or ``factorise`` raises. At the demo size (session 19, 54 walkers,
+            ``benchmarks/posterior_convergence.py``) 28% of proposals were accepted and 1,000
+            steps (743 s) gave max R-hat 1.067 and min bulk ESS 527, where DE and the rotations
+            alone needed 7,000 steps (3,211 s) for 1.12 and 298; R-hat stayed at 1.07-1.09 up
+            to 2,000 steps (walkers stuck on the couple style).
 
     Returns:
         a Posterior. A ``ChainTooShortWarning`` is issued when the chain is shorter than 50
