@@ -591,7 +591,9 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
             z = be.get_chain()[n_adapt // 3:n_adapt][..., block].reshape(-1, block.size)
             return _default_moves(target, hmc, (block, z.mean(0), _pooled_cov(z)))
 
-        phases = [(n_adapt, True), (n_steps, False)] if n_adapt else [(n_steps, True)]
+        # (a resumed file's stored adaptation may be longer than this call's n_steps)
+        phases = ([(min(n_adapt, n_steps), True), (n_steps, False)] if n_adapt
+                  else [(n_steps, True)])
     else:
         phases = [(n_steps, None)]
 
