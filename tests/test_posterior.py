@@ -145,19 +145,20 @@ def test_killed_run_resumes_from_hdf5_without_losing_samples(tiny_model, tmp_pat
     deadline = time.time() + 600
     done_before = 0
     while time.time() < deadline and proc.poll() is None:
-        time.sleep(0.5)
+        time.sleep(0.1)
         if h5.exists():
             try:
                 done_before = emcee.backends.HDFBackend(str(h5), read_only=True).iteration
             except Exception:  # the writer holds the file mid-write
                 continue
-            if done_before >= 20:
+            if done_before >= 5:
                 proc.kill()
                 break
     proc.wait()
     assert proc.returncode != 0 and proc.returncode == -9, "the child must die by our SIGKILL"
     # killed before the independence move's 100 adaptation steps ended: the resumed run
     # finishes the adaptation, then fits the second phase's proposal from the file
+    done_before = emcee.backends.HDFBackend(str(h5), read_only=True).iteration
     assert 0 < done_before < 100, "the run should have been killed during the adaptation"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
@@ -375,6 +376,9 @@ def test_a_file_resumes_only_with_the_independence_choice_it_was_written_with(ti
         with pytest.raises(bm.BayesmotionError, match="resume it with independence=False"):
             bm.sample_posterior(tiny_model, n_steps=16, backend=tmp_path / "b.h5",
                                 progress=False, burn=4, thin=1)
+        with pytest.raises(bm.BayesmotionError, match=r"n_steps \(3\) must exceed the 3"):
+            bm.sample_posterior(tiny_model, n_steps=3, backend=tmp_path / "a.h5",
+                                progress=False)
         # a longer resumed run keeps the adaptation length the file was started with
         post = bm.sample_posterior(tiny_model, n_steps=40, backend=tmp_path / "a.h5",
                                    progress=False, burn=3, thin=1)

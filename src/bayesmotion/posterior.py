@@ -55,8 +55,8 @@ BLOCKS = {"bottom": ("bottom",), "upper": ("interaction", "dynamics")}
 # the independence move: a rotated style coordinate whose Laplace sd is below PINNED_SD (logit
 # units) is pinned by the likelihood (the rotations keep each style vector's norm, and near its
 # vertex one stick coordinate is that norm), so it joins the non-rotated block; the first
-# ADAPT_STEPS steps (at most a quarter of the chain) propose from the Laplace approximation,
-# the rest from the moments of the adaptation's last two thirds
+# min(ADAPT_STEPS, n_steps // 4) steps propose from the Laplace approximation, the rest from
+# the moments of the adaptation's last two thirds
 PINNED_SD = 0.1
 ADAPT_STEPS = 150
 
@@ -368,21 +368,20 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             coordinate (an emotion style coordinate, R-hat 1.57, ESS 113) was no better than
             the default's at 1,000 steps. Not the default until a long run shows the gain.
         independence: add, after DE and the rotations, an independence Metropolis step
-            (:class:`bayesmotion.moves.IndependenceMove`) on the coordinates the rotations do
-            not move, plus the rotated ones the likelihood pins (Laplace sd < 0.1): a
-            multivariate t (20 degrees of freedom) proposal from the Laplace approximation at
-            the conditional MAP for the first quarter of the chain (at most 150 steps), then
-            from the sample mean and covariance of that adaptation's last two thirds (every
-            walker pooled). Each phase is a fixed kernel; the adaptation is part of the burn-in
-            (``burn`` must cover it, as NUTS's warm-up), and a file resumed with ``backend``
-            switches where its first run did. One more log-density per walker and step (a step
-            costs about twice a DE step). ``None`` (default): on for the joint emcee sampler
-            with the default moves, off otherwise; ``True`` with ``method="nuts"``, user
-            ``moves`` or ``factorise`` raises. At the demo size (session 19, 54 walkers,
-            ``benchmarks/posterior_convergence.py``) 28% of proposals were accepted and 1,000
-            steps (743 s) gave max R-hat 1.067 and min bulk ESS 527, where DE and the rotations
-            alone needed 7,000 steps (3,211 s) for 1.12 and 298; R-hat stayed at 1.07-1.09 up
-            to 2,000 steps (walkers stuck on the couple style).
+            (:class:`bayesmotion.moves.IndependenceMove`) on the coordinates the rotations do not
+            move, plus the rotated ones the likelihood pins (Laplace sd < 0.1): a multivariate t (20
+            degrees of freedom) proposal from the Laplace approximation at the conditional MAP for
+            the first min(150, n_steps // 4) steps, then from the sample mean and covariance of that
+            adaptation's last two thirds (every walker pooled). Each phase is a fixed kernel; the
+            adaptation is part of the burn-in (``burn`` must cover it, as NUTS's warm-up), and a
+            file resumed with ``backend`` switches where its first run did. One more log-density per
+            walker and step (at the demo size 0.74 s per step against 0.46 s). ``None`` (default):
+            on for the joint emcee sampler with the default moves, off otherwise; ``True`` with
+            ``method="nuts"``, user ``moves`` or ``factorise`` raises. At the demo size (session 19,
+            54 walkers, ``benchmarks/posterior_convergence.py``) 28% of the second phase's proposals
+            were accepted, and 1,000 steps (743 s) gave max R-hat 1.067 and min bulk ESS 527, where
+            DE and the rotations alone needed 7,000 steps (3,211 s) for 1.12 and 298; R-hat stayed
+            at 1.07-1.09 up to 2,000 steps (walkers stuck on the couple style).
 
     Returns:
         a Posterior. A ``ChainTooShortWarning`` is issued when the chain is shorter than 50
@@ -405,11 +404,15 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
                                "to your moves instead)")
     if independence is None:
         independence = method == "emcee" and moves is None and not factorise
-    if independence and burn is not None and burn < _planned_adapt(backend, n_steps):
+    if independence and method == "emcee":
         n_adapt = _planned_adapt(backend, n_steps)
-        raise BayesmotionError(f"burn ({burn}) must cover the independence move's {n_adapt} "
-                               f"adaptation steps (as NUTS's warm-up); pass burn >= {n_adapt}, "
-                               f"or independence=False")
+        if n_steps <= n_adapt:
+            raise BayesmotionError(f"n_steps ({n_steps}) must exceed the {n_adapt} adaptation "
+                                   f"steps of the run stored in {backend}")
+        if burn is not None and burn < n_adapt:
+            raise BayesmotionError(f"burn ({burn}) must cover the independence move's {n_adapt} "
+                                   f"adaptation steps (as NUTS's warm-up); pass burn >= "
+                                   f"{n_adapt}, or independence=False")
     if int(gamma_every) != gamma_every or gamma_every < 1:
         raise BayesmotionError(f"gamma_every must be a positive integer, got {gamma_every!r}")
     target = Target(fitted)
@@ -532,6 +535,22 @@ def _move_stats(moves) -> dict:
             "hmc_block_acceptance": hmc}
 
 
+def _phase_stats(ran) -> dict:
+    """:func:`_move_stats` over the phases run, each acceptance weighted by its phase's steps
+    (None where no phase ran or the move is absent)."""
+    stats = [(_move_stats(m), n) for m, n in ran]
+    out = {}
+    for key in ("rotation_acceptance", "independence_acceptance", "hmc_acceptance"):
+        vals = [(s[key], n) for s, n in stats if s[key] is not None and np.isfinite(s[key])]
+        out[key] = (float(sum(v * n for v, n in vals) / sum(n for _, n in vals))
+                    if vals else None)
+    blocks = [(np.asarray(s["hmc_block_acceptance"]), n) for s, n in stats
+              if s["hmc_block_acceptance"] is not None]
+    out["hmc_block_acceptance"] = ([float(v) for v in sum(a * n for a, n in blocks)
+                                    / sum(n for _, n in blocks)] if blocks else None)
+    return out
+
+
 def _initial_state(start, seed):
     import emcee
 
@@ -601,11 +620,12 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
             return _default_moves(target, hmc) if moves is None else moves
 
     t0 = time.perf_counter()
-    used = None
+    ran = []  # (moves, steps) of each phase run by this call
     for end, which in phases:
         if done >= end:
             continue
         used = phase_moves(which)
+        ran.append((used, end - done))
         sampler = emcee.EnsembleSampler(W, target.ndim, log_prob, vectorize=True, backend=be,
                                         moves=used)
         if done:
@@ -616,8 +636,7 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
             sampler.run_mcmc(_initial_state(start, seed), end, progress=progress)
         done = end
     seconds = time.perf_counter() - t0
-    info = {"seconds": seconds, "factorised": False,
-            **_move_stats(phase_moves(phases[-1][1]) if used is None else used)}
+    info = {"seconds": seconds, "factorised": False, **_phase_stats(ran)}
     if independence:
         info["adapt_steps"] = n_adapt
     return _finish(target, be.get_chain(), be.get_log_prob(), be.accepted / max(be.iteration, 1),
@@ -633,20 +652,22 @@ def _adapt_record(backend, done: int, n_adapt: int | None) -> int:
     independence move. A resumed file must have been written with the same choice."""
     import h5py
 
-    with h5py.File(str(backend), "a") as f:
+    with h5py.File(str(backend), "r") as f:
         attrs = f["mcmc"].attrs
         stored = int(attrs[ADAPT_ATTR]) if ADAPT_ATTR in attrs else None
-        if done and (stored is None) != (n_adapt is None):
-            raise BayesmotionError(
-                f"backend {backend} was written {'without' if stored is None else 'with'} the "
-                f"independence move; resume it with independence="
-                f"{'False' if stored is None else 'True'}")
-        if n_adapt is None:
-            return 0
-        if stored is None or not done:
-            attrs[ADAPT_ATTR] = n_adapt
-            return n_adapt
+    if done and (stored is None) != (n_adapt is None):
+        flag = "False (CLI: --no-independence)" if stored is None else "True (the default)"
+        raise BayesmotionError(
+            f"backend {backend} was written {'without' if stored is None else 'with'} the "
+            f"independence move (files written before it existed have none); resume it with "
+            f"independence={flag}")
+    if n_adapt is None:
+        return 0
+    if done:
         return stored
+    with h5py.File(str(backend), "a") as f:
+        f["mcmc"].attrs[ADAPT_ATTR] = n_adapt
+    return n_adapt
 
 
 def _planned_adapt(backend, n_steps: int) -> int:
@@ -656,8 +677,9 @@ def _planned_adapt(backend, n_steps: int) -> int:
     if backend is not None and os.path.exists(str(backend)):
         try:
             with h5py.File(str(backend), "r") as f:
-                if ADAPT_ATTR in f["mcmc"].attrs:
-                    return int(f["mcmc"].attrs[ADAPT_ATTR])
+                attrs = f["mcmc"].attrs
+                if ADAPT_ATTR in attrs and int(attrs.get("iteration", 0)) > 0:
+                    return int(attrs[ADAPT_ATTR])
         except (OSError, KeyError):  # not an HDF5 file, or no chain yet: _open_backend decides
             pass
     return _adapt_steps(n_steps)
