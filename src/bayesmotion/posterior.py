@@ -490,11 +490,10 @@ def _default_moves(target, hmc: bool = False, proposal=None):
 
     moves = emcee.moves.DEMove()
     slices = style_slices(target.unravel, target.x0) if hasattr(target, "unravel") else {}
-    rotated: set[int] = set()
     if slices:  # cross the style vectors' rotation ridges without GP evaluations
         conc = target.model.log_posterior_fn.style_prior.concentration
         moves = StyleRotations(moves, slices, conc)
-        rotated = {int(i) for idx, _ in moves.blocks for i in idx}
+    rotated = _rotated(moves)
     extra = []
     if proposal is not None:
         # the hyperparameters are nearly Gaussian, strongly correlated (DE crawls there: tau
