@@ -20,6 +20,10 @@ quarter as often): 0.31 s per step with 48 walkers, max R-hat 1.20, min bulk ESS
 329); 0.34 s per step with 54 walkers, 1.25 and 164 (max tau 422). Cheaper steps, but no more
 effective samples per second than the joint run (0.068-0.080 against 0.093), so it is not the
 default.
+
+Session 19 (2026-11-23), the default with the independence step, 2,000 steps at 0.74 s: max
+R-hat 1.112 / 1.074 / 1.067 / 1.078 and min bulk ESS 306 / 453 / 527 / 418 at 400 / 800 /
+1,000 / 2,000 steps (worst: style:couple[1, 0] and style:emotion[0, 0]).
 """
 
 from __future__ import annotations
