@@ -1,6 +1,7 @@
 """emcee moves for the hierarchical posterior: rotations along the style vectors' symmetry
-(exact, and free of GP evaluations) and ensemble-preconditioned HMC on a block of coordinates
-(:class:`EnsembleHMC`, see its docstring).
+(exact, and free of GP evaluations), ensemble-preconditioned HMC on a block of coordinates
+(:class:`EnsembleHMC`) and independence Metropolis on a block (:class:`IndependenceMove`; see
+their docstrings).
 
 The likelihood sees a factor's style vectors only through their inner products (the kernels'
 ``prod_f s_f^T s_f'``, :func:`bayesmotion.kernels.style_gram`), i.e. through the Gram matrix
@@ -279,45 +280,7 @@ def _leapfrog_fn(value_and_grad, block):
     return run
 
 
-class _BlockMH(emcee.moves.MHMove):
-    """A Metropolis-Hastings move on a block of coordinates (the others held: a Gibbs block
-    update) with a multivariate proposal of scale matrix ``cov``; counts its acceptance."""
-
-    def __init__(self, block, cov):
-        block = np.asarray(block, dtype=int).ravel()
-        name = type(self).__name__
-        if not block.size:
-            raise ValueError(f"{name} needs a non-empty block of coordinates")
-        cov = np.atleast_2d(np.asarray(cov, dtype=float))
-        if cov.shape != (block.size, block.size):
-            raise ValueError(f"cov must have shape ({block.size}, {block.size}) for a block "
-                             f"of {block.size} coordinates, got {cov.shape}")
-        try:
-            self._chol = np.linalg.cholesky(0.5 * (cov + cov.T))
-        except np.linalg.LinAlgError:
-            raise ValueError(f"{name}: cov must be symmetric positive definite") from None
-        self.block = block
-        self._tries = 0
-        self._accepts = 0
-        super().__init__(self._propose)
-
-    @property
-    def acceptance(self) -> float:
-        return self._accepts / self._tries if self._tries else float("nan")
-
-    def propose(self, model, state):
-        # emcee's update writes into the state's arrays: work on copies
-        blobs = None if state.blobs is None else np.array(state.blobs)
-        state = emcee.State(np.array(state.coords, dtype=float),
-                            log_prob=np.array(state.log_prob, dtype=float), blobs=blobs,
-                            random_state=state.random_state)
-        state, accepted = super().propose(model, state)
-        self._tries += len(accepted)
-        self._accepts += int(np.sum(accepted))
-        return state, accepted
-
-
-class IndependenceMove(_BlockMH):
+class IndependenceMove(emcee.moves.MHMove):
     """Independence Metropolis on a block of coordinates, with a fixed multivariate-t proposal.
 
     Every walker proposes new ``block`` coordinates (the others held: a Gibbs block update)
@@ -346,7 +309,21 @@ class IndependenceMove(_BlockMH):
     """
 
     def __init__(self, block, mean, cov, df: float = 20.0):
-        super().__init__(block, cov)
+        block = np.asarray(block, dtype=int).ravel()
+        if not block.size:
+            raise ValueError("IndependenceMove needs a non-empty block of coordinates")
+        cov = np.atleast_2d(np.asarray(cov, dtype=float))
+        if cov.shape != (block.size, block.size):
+            raise ValueError(f"cov must have shape ({block.size}, {block.size}) for a block "
+                             f"of {block.size} coordinates, got {cov.shape}")
+        try:
+            self._chol = np.linalg.cholesky(0.5 * (cov + cov.T))
+        except np.linalg.LinAlgError:
+            raise ValueError("IndependenceMove: cov must be symmetric positive definite") from None
+        self.block = block
+        self._tries = 0
+        self._accepts = 0
+        super().__init__(self._propose)
         mean = np.asarray(mean, dtype=float).ravel()
         if mean.shape != self.block.shape:
             raise ValueError(f"mean must have shape ({self.block.size},) for a block of "
@@ -355,6 +332,21 @@ class IndependenceMove(_BlockMH):
             raise ValueError(f"df must be > 0, got {df!r}")
         self.mean = mean
         self.df = float(df)
+
+    @property
+    def acceptance(self) -> float:
+        return self._accepts / self._tries if self._tries else float("nan")
+
+    def propose(self, model, state):
+        # emcee's update writes into the state's arrays: work on copies
+        blobs = None if state.blobs is None else np.array(state.blobs)
+        state = emcee.State(np.array(state.coords, dtype=float),
+                            log_prob=np.array(state.log_prob, dtype=float), blobs=blobs,
+                            random_state=state.random_state)
+        state, accepted = super().propose(model, state)
+        self._tries += len(accepted)
+        self._accepts += int(np.sum(accepted))
+        return state, accepted
 
     def log_q(self, z) -> np.ndarray:
         """Log-density of the proposal at rows ``z`` of block coordinates, up to a constant."""
