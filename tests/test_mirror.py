@@ -1,0 +1,144 @@
+"""Left-right mirroring: exact in world positions, on symmetric, half-turned and measured
+(asymmetric) skeletons; the label-free canonical side on real walks."""
+
+import numpy as np
+import pytest
+
+import bayesmotion as bm
+from bayesmotion.data import Motion, Skeleton
+from bayesmotion.data.bandai import load_bandai
+from bayesmotion.data.mirror import canonical_side, lateral_ratio, mirror, mirror_pairs, mirror_plan
+from bayesmotion.errors import BayesmotionError
+
+ROOT6 = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
+ROT3 = ("Zrotation", "Xrotation", "Yrotation")
+
+
+def _half_turned_skeleton() -> Skeleton:
+    """Hips, Spine and two arms; the right arm's frames are turned half a turn from the mirrored
+    left ones (its bones point along +x locally, as the left's, although they hang the other
+    way), as in Bandai's rig."""
+    names = ("Hips", "Spine", "Arm_L", "Hand_L", "Arm_R", "Hand_R")
+    parents = (-1, 0, 1, 2, 1, 4)
+    offsets = np.array([[0, 0, 0], [0, 10, 0], [5, 0, 0], [10, 0, 0], [-5, 0, 0], [10, 0, 0.]])
+    ends = {3: np.array([3.0, 1.0, 0.0]), 5: np.array([3.0, -1.0, 0.0])}
+    return Skeleton(names, parents, offsets, (ROOT6,) + (ROT3,) * 5, ends)
+
+
+def _random_motion(sk: Skeleton, T: int = 30, seed: int = 0, walk=(0.0, 0.0),
+                   sway: float = 20.0) -> Motion:
+    """Random joint angles; the hips sway by up to ``sway`` degrees and travel by ``walk``
+    (x, z) per frame."""
+    rng = np.random.default_rng(seed)
+    v = rng.uniform(-60, 60, size=(T, sk.n_channels))
+    v[:, 3:6] = rng.uniform(-sway, sway, size=(T, 3))
+    v[:, 0] = walk[0] * np.arange(T)
+    v[:, 1] = 90.0
+    v[:, 2] = walk[1] * np.arange(T)
+    # the right arm hangs the other way: its rest is a half turn about the vertical
+    v[:, sk.channel_offsets[4] + 2] += 180.0
+    return Motion(sk, v, 30.0, "synthetic")
+
+
+def _position_perm(sk: Skeleton, perm: np.ndarray) -> np.ndarray:
+    """The partner permutation extended to ``positions(with_end_sites=True)``'s end sites."""
+    ends = sorted(sk.end_sites)
+    return np.concatenate([perm, [sk.n_joints + ends.index(perm[j]) for j in ends]])
+
+
+def _check_exact(m: Motion, plan) -> Motion:
+    mm = mirror(m, plan)
+    assert mm.skeleton.same_layout(m.skeleton) and mm.values.shape == m.values.shape
+    P, Q = m.positions(True), mm.positions(True)
+    expected = P[:, _position_perm(m.skeleton, plan.perm)] * np.diag(plan.reflection)
+    np.testing.assert_allclose(Q, expected, atol=1e-9 * m.skeleton.size())
+    back = mirror(mm, plan)  # an involution in positions
+    np.testing.assert_allclose(back.positions(True), P, atol=1e-9 * m.skeleton.size())
+    return mm
+
+
+def test_half_turned_frames_are_found_and_positions_are_exact():
+    sk = _half_turned_skeleton()
+    m = _random_motion(sk)
+    plan = mirror_plan(sk, [m])
+    assert [sk.names[j] for j in plan.perm] == ["Hips", "Spine", "Arm_R", "Hand_R", "Arm_L",
+                                               "Hand_L"]
+    np.testing.assert_allclose(plan.frames[1], np.eye(3))  # the midline keeps its frame
+    # the arms' frames are the half turn that takes +x (the bone) to -x
+    for j in (2, 3, 4, 5):
+        np.testing.assert_allclose(plan.frames[j] @ [1.0, 0, 0], [-1.0, 0, 0])
+    for axis in (0, 2):
+        _check_exact(m, mirror_plan(sk, [m], axis=axis))
+    # the half-turned rig is symmetric under this plan: the skeleton is kept
+    assert mirror(m, plan).skeleton is sk
+
+
+def test_lateral_ratio_reads_the_walking_side_and_mirroring_negates_it():
+    sk = _half_turned_skeleton()
+    # Arm_L sits at +x of the hips and the hips barely turn, so walking along +x is to the left
+    left = _random_motion(sk, walk=(3.0, 0.5), seed=1, sway=5.0)
+    assert lateral_ratio(left) > 0.8
+    plan = mirror_plan(sk, [left])
+    assert lateral_ratio(mirror(left, plan), plan) == pytest.approx(-lateral_ratio(left, plan))
+    ahead = _random_motion(sk, walk=(0.0, 3.0), seed=2, sway=5.0)
+    assert abs(lateral_ratio(ahead)) < 0.1
+    out, flipped = canonical_side([left, mirror(left, plan), ahead], plan=plan)
+    assert flipped.tolist() == [False, True, False]
+    np.testing.assert_allclose(out[1].positions(), left.positions(), atol=1e-9 * sk.size())
+
+
+def test_measured_cmu_skeleton_is_mirrored_with_the_motion():
+    data = bm.load_handshakes(fps=10, n_repetitions=1)
+    motions = [a for t in list(data)[:2] for a in t.actors]
+    sk = motions[0].skeleton
+    perm = mirror_pairs(sk)
+    pairs = {(sk.names[i], sk.names[j]) for i, j in enumerate(perm) if i < j}
+    assert ("LeftArm", "RightArm") in pairs and ("LHipJoint", "RHipJoint") in pairs
+    assert len(pairs) == 12 and perm[sk.index("LowerBack")] == sk.index("LowerBack")
+    plan = mirror_plan(sk, motions)
+    for m in motions:  # two subjects: two skeletons of one layout
+        mm = _check_exact(m, plan)
+        # a measured person is not exactly symmetric: the offsets travel with the motion
+        assert mm.skeleton is not m.skeleton
+        j, s = sk.index("LeftUpLeg"), sk.index("RightUpLeg")
+        np.testing.assert_allclose(mm.skeleton.offsets[j],
+                                   plan.frames[sk.parents[j]].T @ plan.reflection
+                                   @ m.skeleton.offsets[s])
+        assert lateral_ratio(mm, plan) == pytest.approx(-lateral_ratio(m, plan))
+
+
+def test_bad_pairs_are_named():
+    sk = _half_turned_skeleton()
+    with pytest.raises(BayesmotionError, match="'Elbow_L', not a joint"):
+        mirror_pairs(sk, {"Elbow_L": "Arm_R"})
+    with pytest.raises(BayesmotionError, match="break the joint tree"):
+        mirror_pairs(sk, {"Spine": "Arm_L"})
+    with pytest.raises(BayesmotionError, match="axis must be 0"):
+        mirror_plan(sk, axis=1)
+    m = _random_motion(sk)
+    other = mirror_plan(_half_turned_skeleton(), [m])
+    with pytest.raises(BayesmotionError, match="plan is for 6 joints"):
+        mirror(bm.load_handshakes(fps=10, n_repetitions=1)[0].actors[0], other)
+
+
+def test_real_walks_to_the_right_are_the_ones_mirrored(bandai_root):
+    data = load_bandai(bandai_root, content=("walk", "walk-back", "walk-left", "walk-right"),
+                       fps=15.0)
+    motions = [t.actors[0] for t in data]
+    out, flipped = canonical_side(motions)
+    assert [t.name for t, f in zip(data, flipped, strict=True) if f] == [
+        t.name for t in data if t.labels["content"] == "walk-right"]
+    plan = mirror_plan(motions[0].skeleton, motions)
+    ratios = {t.name: lateral_ratio(m, plan) for t, m in zip(data, motions, strict=True)}
+    for t in data:
+        r, content = ratios[t.name], t.labels["content"]
+        if content == "walk-left":
+            assert r > 0.15, t.name
+        elif content == "walk-right":
+            assert r < -0.15, t.name
+        else:  # straight ahead or back
+            assert abs(r) < 0.15, t.name
+    for m, mm, f in zip(motions, out, flipped, strict=True):
+        if f:
+            np.testing.assert_allclose(mm.positions(True), mirror(m, plan).positions(True))
+    _check_exact(motions[0], plan)
