@@ -1,5 +1,6 @@
 """Left-right mirroring: exact in world positions, on symmetric, half-turned and measured
-(asymmetric) skeletons; the label-free canonical side on real walks."""
+(asymmetric) skeletons; the label-free canonical side on real walks; rest frames that move
+joint angles away from gimbal lock without moving a joint."""
 
 import numpy as np
 import pytest
@@ -7,7 +8,16 @@ import pytest
 import bayesmotion as bm
 from bayesmotion.data import Motion, Skeleton
 from bayesmotion.data.bandai import load_bandai
-from bayesmotion.data.mirror import canonical_side, lateral_ratio, mirror, mirror_pairs, mirror_plan
+from bayesmotion.data.mirror import (
+    _world_and_local,
+    canonical_side,
+    lateral_ratio,
+    mirror,
+    mirror_pairs,
+    mirror_plan,
+    reframe,
+    rest_frames,
+)
 from bayesmotion.errors import BayesmotionError
 
 ROOT6 = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
@@ -142,3 +152,50 @@ def test_real_walks_to_the_right_are_the_ones_mirrored(bandai_root):
         if f:
             np.testing.assert_allclose(mm.positions(True), mirror(m, plan).positions(True))
     _check_exact(motions[0], plan)
+
+
+def _mean_local_rotations(motions) -> np.ndarray:
+    L = np.concatenate([_world_and_local(m.skeleton, m.values)[1] for m in motions])
+    return L.mean(0)
+
+
+def test_rest_frames_centre_every_joint_and_keep_the_positions():
+    data = bm.load_handshakes(fps=10, n_repetitions=1)
+    motions = [t.actors[0] for t in data]
+    sk = motions[0].skeleton
+    B = rest_frames(motions)
+    np.testing.assert_allclose(B[0], np.eye(3))  # the root carries the heading: kept
+    for b in B:
+        np.testing.assert_allclose(b @ b.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(b) == pytest.approx(1.0)
+    out = [reframe(m, B) for m in motions]
+    for m, o in zip(motions, out, strict=True):
+        np.testing.assert_allclose(o.positions(True), m.positions(True), atol=1e-9 * sk.size())
+        cols = sk.rotation_layout()[0][0]
+        np.testing.assert_allclose(o.values[:, cols], m.values[:, cols], atol=1e-9)
+    # every other joint's mean local rotation is now the identity (its projected mean)
+    before, after = _mean_local_rotations(motions), _mean_local_rotations(out)
+    for j in range(1, sk.n_joints):
+        U, _, Vt = np.linalg.svd(after[j])
+        np.testing.assert_allclose(U @ Vt, np.eye(3), atol=1e-9)
+    assert max(np.linalg.norm(before[j] - np.eye(3)) for j in range(1, sk.n_joints)) > 0.5
+    with pytest.raises(BayesmotionError, match=r"frames must be \(31, 3, 3\)"):
+        reframe(motions[0], B[:3])
+    with pytest.raises(BayesmotionError, match="at least one motion"):
+        rest_frames([])
+
+
+def test_rest_frames_take_bandais_spine_out_of_gimbal_lock(bandai_root):
+    data = load_bandai(bandai_root, content=("walk", "walk-left", "walk-right"), fps=15.0)
+    motions = [t.actors[0] for t in data]
+    sk = motions[0].skeleton
+    cols = sk.rotation_layout()[0][sk.index("Spine")]
+    # ZXY with the middle angle near 90 degrees: Z and Y swing together, by more than a half
+    # turn within some clips, while the spine itself barely moves
+    assert all(np.abs(m.values[:, cols[1]]).min() > 60 for m in motions)
+    assert max(np.ptp(m.values[:, cols[0]]) for m in motions) > 180
+    B = rest_frames(motions)
+    out = [reframe(m, B) for m in motions]
+    assert max(np.abs(o.values[:, cols]).max() for o in out) < 30
+    for m, o in zip(motions, out, strict=True):
+        np.testing.assert_allclose(o.positions(True), m.positions(True), atol=1e-9 * sk.size())

@@ -214,12 +214,70 @@ def mirror(motion: Motion, plan: MirrorPlan | None = None) -> Motion:
     ``plan`` defaults to :func:`mirror_plan` of the motion's skeleton with the motion itself as
     the reference; pass one plan to mirror several clips alike.
     """
+    plan = mirror_plan(motion.skeleton, (motion,)) if plan is None else plan
+    out = _reframe(motion, plan.perm, plan.reflection, plan.frames, near_original=True)
+    return out.replace(name=f"{motion.name} (mirrored)".strip())
+
+
+def rest_frames(motions: Sequence[Motion], fixed: Iterable[int] | None = None) -> np.ndarray:
+    """(J, 3, 3) per-joint frames ``B_j`` that make each joint's mean local rotation the
+    identity (see :func:`reframe`).
+
+    ``B_j = mean(L_j)^T B_parent``, with ``mean(L_j)`` the rotation nearest the average of the
+    joint's local rotation matrices over every frame of ``motions``. Joints in ``fixed`` keep
+    their frame (``B = I``); by default the joint that carries the translation and its
+    ancestors, whose heading the pose representation takes out itself.
+    """
+    motions = list(motions)
+    if not motions:
+        raise BayesmotionError("rest_frames needs at least one motion")
+    sk = motions[0].skeleton
+    for m in motions:
+        if not m.skeleton.same_layout(sk):
+            raise BayesmotionError(f"motion {m.name!r} has another skeleton than the first")
+    if fixed is None:
+        j, fixed = find_mover(motions), set()
+        while j >= 0:
+            fixed.add(j)
+            j = sk.parents[j]
+    fixed = set(fixed)
+    L = np.concatenate([_world_and_local(sk, m.values)[1] for m in motions])
+    B = np.empty((sk.n_joints, 3, 3))
+    for j, p in enumerate(sk.parents):
+        if j in fixed:
+            B[j] = np.eye(3)
+            continue
+        U, _, Vt = np.linalg.svd(L[:, j].mean(0))
+        mean = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        B[j] = mean.T @ (np.eye(3) if p < 0 else B[p])
+    return B
+
+
+def reframe(motion: Motion, frames: np.ndarray) -> Motion:
+    """``motion`` on the same joints with each joint's frame turned by ``frames`` (J, 3, 3).
+
+    World positions are unchanged (to float precision); local rotations become
+    ``B_p^T L_j B_j`` and offsets ``B_p^T t_j``, written as Euler angles in each joint's channel
+    order on the branch nearest zero. With :func:`rest_frames` the angles stay near zero, away
+    from gimbal lock: Bandai's spine sits at 85 degrees in its middle Euler angle, where its
+    first and third angles trade off freely from clip to clip (they range over 25-141 degrees
+    with their sum near zero)."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if frames.shape != (motion.skeleton.n_joints, 3, 3):
+        raise BayesmotionError(f"frames must be ({motion.skeleton.n_joints}, 3, 3) for this "
+                               f"skeleton, got {frames.shape}")
+    return _reframe(motion, np.arange(motion.skeleton.n_joints), np.eye(3), frames,
+                    near_original=False)
+
+
+def _reframe(motion: Motion, perm: np.ndarray, M: np.ndarray, A: np.ndarray,
+             near_original: bool) -> Motion:
+    """Joint ``j`` takes partner ``perm[j]``'s motion reflected by ``M``, in frame ``A[j]``:
+    local rotations ``A_p^T M L_perm(j) M A_j``, translations ``A_p^T M t_perm(j)``."""
     sk = motion.skeleton
-    plan = mirror_plan(sk, (motion,)) if plan is None else plan
-    if len(plan.perm) != sk.n_joints:
-        raise BayesmotionError(f"mirror plan is for {len(plan.perm)} joints, the motion has "
+    if len(perm) != sk.n_joints:
+        raise BayesmotionError(f"mirror plan is for {len(perm)} joints, the motion has "
                                f"{sk.n_joints}")
-    perm, M, A = plan
     _, L, t = _world_and_local(sk, motion.values)
     rot_idx, orders = sk.rotation_layout()
     pos_idx = sk.position_layout()
@@ -228,14 +286,18 @@ def mirror(motion: Motion, plan: MirrorPlan | None = None) -> Motion:
     for j, p in enumerate(sk.parents):
         Ap = np.eye(3) if p < 0 else A[p]
         s = perm[j]
+        if s == j and not (np.any(M != np.eye(3)) or np.any(A[j] != np.eye(3))
+                           or np.any(Ap != np.eye(3))):
+            continue  # nothing changes: keep the channels as they are, bit for bit
         n = len(orders[j])
         if n:
             if n != 3:
                 raise BayesmotionError(f"joint {sk.names[j]!r} has {n} rotation channels; "
-                                       "mirroring needs all three")
+                                       "mirroring and reframing need all three")
             Lm = Ap.T @ M @ L[:, s] @ M @ A[j]
             cols = rot_idx[j, :n]
-            out[:, cols] = _euler_nearest(Lm, orders[j], motion.values[:, cols])
+            ref = motion.values[:, cols] if near_original else np.zeros((len(Lm), 3))
+            out[:, cols] = _euler_nearest(Lm, orders[j], ref)
         tm = t[:, s] @ (Ap.T @ M).T
         offsets[j] = Ap.T @ M @ sk.offsets[s]
         for a in range(3):
@@ -246,7 +308,7 @@ def mirror(motion: Motion, plan: MirrorPlan | None = None) -> Motion:
             and all(np.allclose(e, sk.end_sites[j], rtol=0, atol=1e-9 * sk.size())
                     for j, e in ends.items())):
         sk = Skeleton(sk.names, sk.parents, offsets, sk.channels, ends)
-    return motion.replace(skeleton=sk, values=out, name=f"{motion.name} (mirrored)".strip())
+    return motion.replace(skeleton=sk, values=out)
 
 
 def _swapped(name: str, a: str, b: str) -> list[str]:
