@@ -4,8 +4,19 @@
 
 The one-actor H-GPDM (emotion in the interaction and dynamics layers) is fitted by MAP on the
 16 Bandai walk clips (walk, walk-back, walk-left, walk-right x neutral/happy/angry/sad; quick:
-the 8 of walk and walk-back),
-resampled to ``fps`` and cropped to ``model_frames``. ``bayesmotion.evaluate.leave_one_out``
+the 8 of walk-left and walk-right), resampled to ``fps`` and cropped to ``model_frames``.
+Two label-free data steps come first (``bayesmotion.data.mirror``; both read poses only, never
+labels, and both pool the 16 clips' poses, held-out clip included, as the full fit does):
+``canonical_side`` mirrors the clips that walk to the actor's right, so a walk to the right
+stands in for the missing walk to the left of the same emotion; ``rest_frames``/``reframe``
+turn each joint's frame to its mean rotation, which takes the spine out of gimbal lock (its
+Euler angles swung by up to a full turn within a clip). Session 20: neither step 56.2%
+(session 17; walks to the right 2/4), mirroring alone 37.5%, rest frames alone 43.8%, both
+68.8% (right 4/4, left 3/4) and, rerun with the final code, 56.2% (right 4/4, left 2/4, the
+walks ahead and back losing what the sideways walks gained): the +-2-clip fragility, no
+reliable gain; mirroring helps the walks to the right only once the angles are well
+conditioned.
+``bayesmotion.evaluate.leave_one_out``
 then refits it without each clip (warm-started, ``refit_iter`` L-BFGS iterations), infers the
 held-out clip's emotion with ``infer_emotion`` and scores it; the affective-feature classifier
 (Bhattacharya et al.'s 18 pose features, logistic regression) and a mean-pose nearest neighbour
@@ -23,7 +34,10 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
+
+import numpy as np
 
 HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
@@ -36,15 +50,20 @@ DATA_ROOT = HERE.parent.parent / "shared" / "data" / "bandai-emotion"
 WALKS = ("walk", "walk-back", "walk-left", "walk-right")
 # projection_iter: L-BFGS iterations of each start's latent projection (infer_emotion's
 # max_iter; its default of 200 stops far from the optima, see handshake_inference.py)
+# canonical_side: mirror the clips that walk to the actor's right (bayesmotion.data.mirror;
+# label-free, from the root's sideways speed), so walk-left and walk-right share one side
 FULL = {"contents": WALKS, "fps": 15.0, "model_frames": 60, "max_iter": 300, "refit_iter": 100,
-        "n_steps": 400, "emotion_starts": "vertices", "projection_iter": 1000}
-QUICK = {"contents": WALKS[:2], "fps": 7.5, "model_frames": 20, "max_iter": 30, "refit_iter": 10,
-         "n_steps": 60, "emotion_starts": "vertices", "projection_iter": 200}
+        "n_steps": 400, "emotion_starts": "vertices", "projection_iter": 1000,
+        "canonical_side": True, "rest_frames": True}
+QUICK = {"contents": WALKS[2:], "fps": 7.5, "model_frames": 20, "max_iter": 30,
+         "refit_iter": 10, "n_steps": 60, "emotion_starts": "vertices", "projection_iter": 200,
+         "canonical_side": True, "rest_frames": True}
 
 
 def run(quick: bool, root: str | Path | None = None) -> dict:
     import bayesmotion  # noqa: F401  (float64 on)
     from bayesmotion.data.bandai import load_bandai
+    from bayesmotion.data.mirror import canonical_side, reframe, rest_frames
     from bayesmotion.data.motion import MotionDataset
     from bayesmotion.evaluate import format_confusion, leave_one_out
     from bayesmotion.model import HGPDM
@@ -56,6 +75,16 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
         return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
     t0 = time.perf_counter()
     data = load_bandai(root, content=cfg["contents"], fps=cfg["fps"])
+    mirrored = np.zeros(len(data), dtype=bool)
+    if cfg["canonical_side"]:
+        motions, mirrored = canonical_side([t.actors[0] for t in data])
+        data = MotionDataset(tuple(replace(t, actors=(m,)) for t, m in zip(data, motions,
+                                                                             strict=True)),
+                             data.levels, name=data.name)
+    if cfg["rest_frames"]:
+        B = rest_frames([t.actors[0] for t in data])
+        data = MotionDataset(tuple(replace(t, actors=(reframe(t.actors[0], B),))
+                                   for t in data), data.levels, name=data.name)
     clips = MotionDataset(tuple(t.select(slice(0, cfg["model_frames"])) for t in data),
                           {"emotion": data.levels["emotion"]}, name="Bandai walks")
     spec = HGPDM(latent_dim=6, interaction_dim=3, interaction_factors=("emotion",),
@@ -91,7 +120,9 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
                  100 * res["baselines"]["mean_pose_nn"], "%"),
         headline("  seconds per clip (refit + inference)", res["seconds"] / len(clips), "s"),
     ]
-    return {**base, "clips": [t.name for t in clips], "frames": int(sum(
+    return {**base, "clips": [t.name for t in clips],
+            "mirrored": [t.name for t, f in zip(clips, mirrored, strict=True) if f],
+            "frames": int(sum(
         t.n_frames for t in clips)), "full_fit": {k: v for k, v in full.diagnostics.items()
                                                    if k != "trace"},
             "full_fit_seconds": t_fit, "result": res, "confusion_table": format_confusion(res),

@@ -25,6 +25,8 @@ def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
     saved = json.loads((tmp_path / "r.json").read_text())  # strict JSON
     r = saved["result"]
     assert len(r["trials"]) == len(saved["clips"]) == 8  # quick: two walk contents
+    # canonical side, from positions alone: exactly the four walks to the right are mirrored
+    assert sorted(saved["mirrored"]) == sorted(c for c in saved["clips"] if "walk-right" in c)
     levels = r["levels"]
     assert sorted(levels) == ["angry", "happy", "neutral", "sad"]
     C = np.asarray(r["confusion_percent"])

@@ -24,7 +24,7 @@ from .data import (
 from .data.bandai import load_bandai
 from .data.emotion import EMOTION_PRESETS, EmotionStyle, apply_emotion
 from .data.handshakes import load_cmu_handshake, load_handshakes
-from .data.mirror import canonical_side, mirror
+from .data.mirror import canonical_side, mirror, reframe, rest_frames
 from .data.representation import PoseCodec
 from .errors import BayesmotionError, BVHError, ModelFileError, SkeletonMismatchError
 from .fitted import FittedHGPDM
@@ -42,7 +42,7 @@ __all__ = [
     "EmotionStyle", "FittedHGPDM", "ModelFileError", "Motion", "MotionDataset", "PoseCodec",
     "Posterior", "Priors", "Rollout", "Skeleton", "SkeletonMismatchError", "Transition", "Trial",
     "apply_emotion", "canonical_side", "datasets", "forward_kinematics", "infer_emotion",
-    "infer_online", "load", "mirror",
+    "infer_online", "load", "mirror", "reframe", "rest_frames",
     "load_bandai", "load_cmu_handshake", "load_handshakes", "parse_bvh", "read_bvh",
     "sample_posterior", "write_bvh",
 ]
