@@ -8,7 +8,9 @@ import pytest
 import bayesmotion as bm
 from bayesmotion.data import Motion, Skeleton
 from bayesmotion.data.bandai import load_bandai
+from bayesmotion.data.fk import euler_matrices
 from bayesmotion.data.mirror import (
+    _euler_nearest,
     _world_and_local,
     canonical_side,
     lateral_ratio,
@@ -56,11 +58,16 @@ def _position_perm(sk: Skeleton, perm: np.ndarray) -> np.ndarray:
     return np.concatenate([perm, [sk.n_joints + ends.index(perm[j]) for j in ends]])
 
 
-def _check_exact(m: Motion, plan) -> Motion:
+def _check_exact(m: Motion, plan, axis: int = 0) -> Motion:
+    """The mirror is the world reflection of the horizontal ``axis`` (Y stays up), joints
+    swapped with their partners."""
+    flip = np.ones(3)
+    flip[axis] = -1.0
+    np.testing.assert_array_equal(plan.reflection, np.diag(flip))
     mm = mirror(m, plan)
     assert mm.skeleton.same_layout(m.skeleton) and mm.values.shape == m.values.shape
     P, Q = m.positions(True), mm.positions(True)
-    expected = P[:, _position_perm(m.skeleton, plan.perm)] * np.diag(plan.reflection)
+    expected = P[:, _position_perm(m.skeleton, plan.perm)] * flip
     np.testing.assert_allclose(Q, expected, atol=1e-9 * m.skeleton.size())
     back = mirror(mm, plan)  # an involution in positions
     np.testing.assert_allclose(back.positions(True), P, atol=1e-9 * m.skeleton.size())
@@ -78,7 +85,7 @@ def test_half_turned_frames_are_found_and_positions_are_exact():
     for j in (2, 3, 4, 5):
         np.testing.assert_allclose(plan.frames[j] @ [1.0, 0, 0], [-1.0, 0, 0])
     for axis in (0, 2):
-        _check_exact(m, mirror_plan(sk, [m], axis=axis))
+        _check_exact(m, mirror_plan(sk, [m], axis=axis), axis)
     # the half-turned rig is symmetric under this plan: the skeleton is kept
     assert mirror(m, plan).skeleton is sk
 
@@ -199,3 +206,49 @@ def test_rest_frames_take_bandais_spine_out_of_gimbal_lock(bandai_root):
     assert max(np.abs(o.values[:, cols]).max() for o in out) < 30
     for m, o in zip(motions, out, strict=True):
         np.testing.assert_allclose(o.positions(True), m.positions(True), atol=1e-9 * sk.size())
+
+
+def test_euler_angles_follow_the_reference_branch_and_stay_continuous():
+    rng = np.random.default_rng(3)
+    T = 200
+    # a smooth ZXY track whose middle angle passes 90 degrees (gimbal lock) and back
+    first = np.column_stack([40 * np.sin(np.linspace(0, 3, T)), np.linspace(60, 120, T),
+                             30 * np.cos(np.linspace(0, 2, T))]) + rng.normal(0, 0.1, (T, 3))
+    R = euler_matrices("ZXY", first)
+    second = first + [180.0, 0.0, 180.0]
+    second[:, 1] = 180.0 - first[:, 1]
+    np.testing.assert_allclose(euler_matrices("ZXY", second), R, atol=1e-12)  # same rotations
+    for ref in (first, second + 360.0):
+        out = _euler_nearest(R, "ZXY", ref)
+        np.testing.assert_allclose(euler_matrices("ZXY", out), R, atol=1e-9)
+        assert np.abs(np.diff(out, axis=0)).max() < 20  # no branch or turn jumps
+        np.testing.assert_allclose(out[0], ref[0], atol=1e-6)  # on the reference's branch
+
+
+def test_names_of_other_exporters_pair_and_unmarked_names_are_refused():
+    def chain(names):
+        n = len(names)
+        return Skeleton(tuple(names), (-1,) + (0,) * (n - 1), np.ones((n, 3)), ((ROT3),) * n)
+
+    for hips, left, right in (("mixamorig:Hips", "mixamorig:LeftArm", "mixamorig:RightArm"),
+                              ("pelvis", "upperarm_l", "upperarm_r"),
+                              ("Hips", "Character1_LeftUpLeg", "Character1_RightUpLeg")):
+        sk = chain([hips, left, right])
+        assert mirror_pairs(sk).tolist() == [0, 2, 1]
+        assert mirror_plan(sk).left.tolist() == [False, True, False]
+    with pytest.raises(BayesmotionError, match="no left-right joint pairs found"):
+        mirror_pairs(chain(["root", "armA", "armB"]))
+    # explicit pairs decide the sides too (lateral_ratio reads them from the plan)
+    sk = chain(["root", "armA", "armB"])
+    plan = mirror_plan(sk, pairs={"armB": "armA"})
+    assert plan.left.tolist() == [False, False, True]
+
+
+def test_a_sideways_walk_mirrored_alone_keeps_its_static_root(bandai_root):
+    data = load_bandai(bandai_root, content=("walk-left", "walk-right"), fps=15.0)
+    for t in data:
+        m = t.actors[0]
+        mm = mirror(m)  # the default plan, from this clip alone
+        cols = m.skeleton.rotation_layout()[0][0]  # joint_Root never rotates in real clips
+        np.testing.assert_allclose(mm.values[:, cols], m.values[:, cols], atol=1e-9)
+        _check_exact(m, mirror_plan(m.skeleton, [m]))

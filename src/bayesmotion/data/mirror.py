@@ -12,8 +12,10 @@ ordinary motion of the same skeleton:
   frame turned half a turn from the mirrored left one) and, where the offsets leave a choice,
   so that the mirrored rotations lie closest to the motion's own (:func:`mirror_plan`);
 * the local rotations ``A_p^T M L_sigma(j) M A_j`` are written back as Euler angles in each
-  joint's channel order, on the branch and turn nearest to the joint's own angles, so mirrored
-  clips use the conventions of real ones; position channels become ``A_p^T M t_sigma(j)``;
+  joint's channel order, continuous in time, on the branch and turn nearest to the joint's own
+  angles at the first frame (near gimbal lock that can still differ from how real clips of the
+  joint are written: :func:`reframe` with :func:`rest_frames` removes the problem); position
+  channels become ``A_p^T M t_sigma(j)``;
 * a skeleton that is not exactly symmetric (CMU's, measured on a person) is mirrored with the
   motion: joint ``j``'s offset becomes ``A_p^T M`` times its partner's (end sites alike), so the
   result may carry a skeleton with other offsets and the same joints and channels.
@@ -28,6 +30,7 @@ so walks to either side share one representation. Emotion inference on the Banda
 from __future__ import annotations
 
 import itertools
+import warnings
 from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
@@ -40,10 +43,12 @@ from .motion import Motion
 from .representation import find_mover
 from .skeleton import Skeleton
 
-# (left, right) spellings, tried as prefix and (longer than one letter) suffix of a joint name;
-# a name pairs only with a name that exists ("LowerBack" has no "RowerBack")
-_SIDE_TOKENS = (("_L", "_R"), (".L", ".R"), ("Left", "Right"), ("left", "right"), ("L_", "R_"),
-                ("L", "R"), ("l", "r"))
+# (left, right) spellings, tried as prefix, as (longer than one letter) suffix and after a
+# namespace separator ("mixamorig:LeftArm", "Character1_LeftUpLeg"); a name pairs only with a
+# name that exists ("LowerBack" has no "RowerBack")
+_SIDE_TOKENS = (("_L", "_R"), (".L", ".R"), ("_l", "_r"), ("Left", "Right"), ("left", "right"),
+                ("L_", "R_"), ("L", "R"), ("l", "r"))
+_SEPARATORS = ":_.|"
 
 
 def _axis_rotations() -> np.ndarray:
@@ -72,6 +77,8 @@ def mirror_pairs(skeleton: Skeleton, pairs: dict[str, str] | None = None) -> np.
     index = {n: i for i, n in enumerate(names)}
     perm = np.arange(len(names))
     if pairs is not None:
+        if not pairs:
+            raise BayesmotionError("pairs is empty; give {left name: right name, ...}")
         for a, b in pairs.items():
             for n in (a, b):
                 if n not in index:
@@ -86,6 +93,10 @@ def mirror_pairs(skeleton: Skeleton, pairs: dict[str, str] | None = None) -> np.
                 if hit:
                     perm[i] = index[hit[0]]
                     break
+        if np.all(perm == np.arange(len(names))):
+            raise BayesmotionError(
+                "no left-right joint pairs found in the joint names (looked for _L/_R, .L/.R, "
+                "_l/_r, Left/Right, L_/R_ and l/r, r/l prefixes); pass pairs={left: right, ...}")
     if not np.array_equal(perm[perm], np.arange(len(names))):
         raise BayesmotionError("mirror pairs are not symmetric (a joint's partner has another "
                                "partner); pass pairs={left: right, ...}")
@@ -107,11 +118,14 @@ class MirrorPlan(NamedTuple):
         perm: (J,) left-right partner of each joint.
         reflection: (3, 3) the world reflection ``M`` (a vertical plane).
         frames: (J, 3, 3) the per-joint axis-aligned rotations ``A_j``.
+        left: (J,) True for the joints on the actor's left (the keys of explicit ``pairs``,
+            else read from the names).
     """
 
     perm: np.ndarray
     reflection: np.ndarray
     frames: np.ndarray
+    left: np.ndarray
 
 
 def _world_and_local(skeleton: Skeleton, values: np.ndarray):
@@ -157,18 +171,22 @@ def mirror_plan(skeleton: Skeleton, motions: Iterable[Motion] = (), *, axis: int
     for m in motions:
         if not m.skeleton.same_layout(skeleton):
             raise BayesmotionError(f"motion {m.name!r} has another skeleton than the plan's")
+    size = skeleton.size()
+    rigid = np.ones(skeleton.n_joints, dtype=bool)
     if motions:
         refs = [_world_and_local(skeleton, m.values) for m in motions]
         G = np.concatenate([r[0] for r in refs])
-        t_mean = np.mean(np.concatenate([r[2] for r in refs]), axis=0)
+        t_all = np.concatenate([r[2] for r in refs])
+        t_mean = t_all.mean(0)
+        # a translation that moves (the walking hips) is no bone: it sets no frame
+        rigid = np.max(np.ptp(t_all, axis=0), axis=-1) <= 1e-6 * size
     else:
         G = None
         t_mean = np.asarray(skeleton.offsets, dtype=np.float64)
-    size = skeleton.size()
     frames = np.empty((skeleton.n_joints, 3, 3))
     for j in range(skeleton.n_joints):
         kids = skeleton.children(j)
-        targets = [(t_mean[c], M @ t_mean[perm[c]]) for c in kids]
+        targets = [(t_mean[c], M @ t_mean[perm[c]]) for c in kids if rigid[c] and rigid[perm[c]]]
         if j in skeleton.end_sites:
             targets.append((skeleton.end_sites[j], M @ skeleton.end_sites[perm[j]]))
         off = np.array([sum(np.linalg.norm(A @ a - b) for a, b in targets)
@@ -181,13 +199,19 @@ def mirror_plan(skeleton: Skeleton, motions: Iterable[Motion] = (), *, axis: int
             frames[j] = _AXIS_ROTATIONS[int(np.argmin(fit))]
         else:
             frames[j] = _AXIS_ROTATIONS[int(np.argmin(np.where(ok, np.arange(len(ok)), 99)))]
-    return MirrorPlan(perm, M, frames)
+    if pairs is not None:
+        left = np.isin(np.arange(skeleton.n_joints), [skeleton.index(a) for a in pairs])
+    else:
+        left = _left_mask(skeleton, perm)
+    return MirrorPlan(perm, M, frames, left)
 
 
 def _euler_nearest(R: np.ndarray, order: str, reference: np.ndarray) -> np.ndarray:
     """(T, 3) Euler angles (degrees) of rotations R (T, 3, 3) in ``order``, continuous in time,
     on the branch and turn nearest to ``reference`` (T, 3) at the first frame."""
-    a = Rotation.from_matrix(R).as_euler(order.upper(), degrees=True)
+    with warnings.catch_warnings():  # at gimbal lock scipy warns; the rotation is still exact
+        warnings.filterwarnings("ignore", "Gimbal lock", UserWarning)
+        a = Rotation.from_matrix(R).as_euler(order.upper(), degrees=True)
     if len(set(order)) == 3:  # Tait-Bryan: the second solution of the same rotation
         b = a + np.array([180.0, 0.0, 180.0])
         b[:, 1] = 180.0 - a[:, 1]
@@ -266,6 +290,10 @@ def reframe(motion: Motion, frames: np.ndarray) -> Motion:
     if frames.shape != (motion.skeleton.n_joints, 3, 3):
         raise BayesmotionError(f"frames must be ({motion.skeleton.n_joints}, 3, 3) for this "
                                f"skeleton, got {frames.shape}")
+    eye = np.broadcast_to(np.eye(3), frames.shape)
+    if not (np.allclose(frames @ np.swapaxes(frames, -1, -2), eye, atol=1e-9)
+            and np.allclose(np.linalg.det(frames), 1.0, atol=1e-9)):
+        raise BayesmotionError("frames must be rotations (orthonormal, determinant +1)")
     return _reframe(motion, np.arange(motion.skeleton.n_joints), np.eye(3), frames,
                     near_original=False)
 
@@ -312,13 +340,18 @@ def _reframe(motion: Motion, perm: np.ndarray, M: np.ndarray, A: np.ndarray,
 
 
 def _swapped(name: str, a: str, b: str) -> list[str]:
-    """``name`` with token ``a`` replaced by ``b`` at its start or (tokens longer than one
-    letter) its end."""
+    """``name`` with token ``a`` replaced by ``b`` at its start, at its end or after a
+    namespace separator (the last two for tokens longer than one letter)."""
     out = []
     if len(a) > 1 and name.endswith(a):
         out.append(name[: -len(a)] + b)
     if name.startswith(a):
         out.append(b + name[len(a):])
+    if len(a) > 1:
+        for sep in _SEPARATORS:
+            k = name.find(sep + a)
+            if k >= 0:
+                out.append(name[: k + 1] + b + name[k + 1 + len(a):])
     return out
 
 
@@ -332,12 +365,17 @@ def _is_left(name: str, partner: str) -> bool:
     return False
 
 
-def _left_right(skeleton: Skeleton, perm: np.ndarray) -> tuple[list[int], list[int]]:
+def _left_mask(skeleton: Skeleton, perm: np.ndarray) -> np.ndarray:
+    names = skeleton.names
+    return np.array([perm[j] != j and _is_left(n, names[perm[j]]) for j, n in enumerate(names)])
+
+
+def _left_right(skeleton: Skeleton, plan: MirrorPlan) -> tuple[list[int], list[int]]:
     """The paired joints attached to the midline (hip joints, shoulders: their left-right line
-    is the torso's) whose names mark them left, and their right partners."""
-    names, parents = skeleton.names, skeleton.parents
-    left = [j for j, n in enumerate(names) if perm[j] != j and parents[j] >= 0
-            and perm[parents[j]] == parents[j] and _is_left(n, names[perm[j]])]
+    is the torso's) on the actor's left, and their right partners."""
+    parents, perm = skeleton.parents, plan.perm
+    left = [j for j in range(skeleton.n_joints) if plan.left[j] and parents[j] >= 0
+            and perm[parents[j]] == parents[j]]
     return left, [int(perm[j]) for j in left]
 
 
@@ -349,8 +387,10 @@ def lateral_ratio(motion: Motion, plan: MirrorPlan | None = None) -> float:
     from the right joints to their left partners, summed over the pairs that hang from the
     midline (hip joints, shoulders)."""
     sk = motion.skeleton
-    perm = mirror_pairs(sk) if plan is None else plan.perm
-    left, right = _left_right(sk, perm)
+    if plan is None:
+        perm = mirror_pairs(sk)
+        plan = MirrorPlan(perm, np.eye(3), np.zeros((0, 3, 3)), _left_mask(sk, perm))
+    left, right = _left_right(sk, plan)
     if not left:
         raise BayesmotionError("lateral_ratio needs left-right joint pairs; none were found "
                                f"in {', '.join(sk.names)}")
