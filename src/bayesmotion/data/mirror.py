@@ -370,11 +370,12 @@ def _left_mask(skeleton: Skeleton, perm: np.ndarray) -> np.ndarray:
     return np.array([perm[j] != j and _is_left(n, names[perm[j]]) for j, n in enumerate(names)])
 
 
-def _left_right(skeleton: Skeleton, plan: MirrorPlan) -> tuple[list[int], list[int]]:
+def _left_right(skeleton: Skeleton, perm: np.ndarray,
+                left_mask: np.ndarray) -> tuple[list[int], list[int]]:
     """The paired joints attached to the midline (hip joints, shoulders: their left-right line
     is the torso's) on the actor's left, and their right partners."""
-    parents, perm = skeleton.parents, plan.perm
-    left = [j for j in range(skeleton.n_joints) if plan.left[j] and parents[j] >= 0
+    parents = skeleton.parents
+    left = [j for j in range(skeleton.n_joints) if left_mask[j] and parents[j] >= 0
             and perm[parents[j]] == parents[j]]
     return left, [int(perm[j]) for j in left]
 
@@ -389,8 +390,9 @@ def lateral_ratio(motion: Motion, plan: MirrorPlan | None = None) -> float:
     sk = motion.skeleton
     if plan is None:
         perm = mirror_pairs(sk)
-        plan = MirrorPlan(perm, np.eye(3), np.zeros((0, 3, 3)), _left_mask(sk, perm))
-    left, right = _left_right(sk, plan)
+        left, right = _left_right(sk, perm, _left_mask(sk, perm))
+    else:
+        left, right = _left_right(sk, plan.perm, plan.left)
     if not left:
         raise BayesmotionError("lateral_ratio needs left-right joint pairs; none were found "
                                f"in {', '.join(sk.names)}")
