@@ -94,7 +94,7 @@ def profile_parts(model, P, T: int, repeats: int) -> dict:
     dec = [decode_actor(model, a, Y[a], Yv[a], r) for a in range(A)]
 
     def fk_only():
-        for v, _, sk in dec:
+        for v, _, sk, _ in dec:
             _positions(sk, v)
 
     stages = {
@@ -106,7 +106,7 @@ def profile_parts(model, P, T: int, repeats: int) -> dict:
             lambda: [decode_actor(model, a, Y[a], Yv[a], r) for a in range(A)],
         "forward kinematics": fk_only,
         "positions + variance (analytic FK Jacobian)":
-            lambda: [_positions_with_var(sk, v, var) for v, var, sk in dec],
+            lambda: [_positions_with_var(sk, v, var) for _, _, _, (v, var, sk) in dec],
     }
     return {name: timeit(fn, repeats=repeats, warmup=1)["median_s"]
             for name, fn in stages.items()}

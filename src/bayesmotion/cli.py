@@ -55,6 +55,12 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--max-iter", type=int, default=1000)
     f.add_argument("--latent-dim", type=int, default=6)
     f.add_argument("--interaction-dim", type=int, default=6)
+    f.add_argument("--rest-frames", action="store_true",
+                   help="turn each joint's frame to its mean rotation before encoding (rigs "
+                        "near gimbal lock, e.g. Bandai's spine); new clips get the same frames")
+    f.add_argument("--canonical-side", action="store_true",
+                   help="mirror one-actor clips that move to the actor's right, at fit and at "
+                        "inference (label-free)")
     s = add("sample", "emcee posterior of a fitted model")
     s.add_argument("model")
     s.add_argument("--out", required=True)
@@ -125,7 +131,8 @@ def _cmd_fit(a):
     from .model import HGPDM
 
     ds = load_data(a.data, a.fps)
-    m = HGPDM(latent_dim=a.latent_dim, interaction_dim=a.interaction_dim).fit(
+    m = HGPDM(latent_dim=a.latent_dim, interaction_dim=a.interaction_dim,
+              rest_frames=a.rest_frames, canonical_side=a.canonical_side).fit(
         ds, max_iter=a.max_iter)
     m.save(a.out)
     d = m.diagnostics

@@ -251,11 +251,14 @@ def _anchor(model, codec, trial: int, actor: int, n_frames: int):
 
 
 def decode_actor(model, actor: int, Y, Y_var, trial: int):
-    """Y (T, D) and isotropic variance (T,) -> channels (T, C), variance (T, C), skeleton."""
+    """Y (T, D) and isotropic variance (T,) -> channels (T, C), variance (T, C), skeleton, and
+    the same three in the codec's rig (rest frames), where the pose variance is isotropic (the
+    positions' variance is computed there: the joint positions are the same on both rigs)."""
     codec = model.codecs[actor]
     sk = model.skeleton(actor, trial)
     T = Y.shape[0]
-    motion = codec.decode(np.asarray(Y), _anchor(model, codec, trial, actor, T), sk, model.fps)
+    motion = codec.decode_rig(np.asarray(Y), _anchor(model, codec, trial, actor, T), sk,
+                              model.fps)
     # model-space columns ("heading" appends a heading-rate column after the C channels)
     full = np.zeros((T, codec.constant.size))
     full[:, codec.keep] = np.asarray(Y_var)[:, None] * codec.scale**2
@@ -269,7 +272,10 @@ def decode_actor(model, actor: int, Y, Y_var, trial: int):
         h = codec.horizontal_columns(sk)
         var[:, h] = np.concatenate([np.zeros((1, h.size)),
                                     np.cumsum(var[1:, h], 0) / model.fps**2])
-    return motion.values, var, sk
+    rig = (motion.values, var, motion.skeleton)
+    if codec.frames is None:
+        return motion.values, var, sk, rig
+    return codec.from_rig(motion, sk).values, codec.channel_variance(motion, var), sk, rig
 
 
 def _positions(sk, values) -> np.ndarray:
@@ -397,8 +403,9 @@ def _map_and_decode(model, P, I, int_s, trial, with_var=True):
     Y_var = np.stack([np.asarray(l[2]) for l in layers_out])
     ang, ang_var, pos, pos_var, sks = [], [], [], [], []
     for a in range(A):
-        v, var, sk = decode_actor(model, a, Y[a], Y_var[a], trial)
-        p, pv = _positions_with_var(sk, v, var)
+        v, var, sk, rig = decode_actor(model, a, Y[a], Y_var[a], trial)
+        rig_values, rig_var, rig_skeleton = rig
+        p, pv = _positions_with_var(rig_skeleton, rig_values, rig_var)
         ang.append(v), ang_var.append(var), pos.append(p), pos_var.append(pv), sks.append(sk)
     # the first o frames are observed: no predictive variance there
     o = model.spec.order

@@ -73,6 +73,12 @@ class HGPDM:
         root_mode: root translation representation ("partner" for two actors, "heading" for
             one, by default); see bayesmotion.data.representation.
         scaling: per-channel scaling of Y ("type" or "channel").
+        rest_frames: turn each joint's frame to its mean rotation over the training motions
+            before encoding (see bayesmotion.data.representation; for rigs near gimbal lock,
+            such as Bandai's spine). Stored with the model, so new clips get the same frames.
+        canonical_side: mirror every one-actor motion that moves to the actor's right before
+            encoding, training clips and new clips alike (label-free;
+            bayesmotion.data.mirror.canonical_side); generated motion is on the left side.
         priors: prior settings.
     """
 
@@ -83,6 +89,8 @@ class HGPDM:
     dynamics_factors: tuple[str, ...] | None = None
     root_mode: str | None = None
     scaling: str = "type"
+    rest_frames: bool = False
+    canonical_side: bool = False
     priors: Priors = field(default_factory=Priors)
 
     def __post_init__(self):
@@ -118,7 +126,8 @@ class HGPDM:
 
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in ("latent_dim", "interaction_dim", "order",
-                                             "root_mode", "scaling")}
+                                             "root_mode", "scaling", "rest_frames",
+                                             "canonical_side")}
         d["interaction_factors"] = list(self.interaction_factors or ())
         d["dynamics_factors"] = list(self.dynamics_factors or ())
         d["priors"] = self.priors.to_dict()
@@ -148,7 +157,8 @@ def fit_codecs(spec: HGPDM, dataset: MotionDataset) -> tuple[PoseCodec, ...]:
         partners = [t.actors[1 - a] for t in dataset] if spec.root_mode == "partner" else None
         if spec.root_mode == "partner" and dataset.n_actors != 2:
             raise BayesmotionError("root_mode='partner' needs two-actor trials")
-        codecs.append(PoseCodec.fit(motions, partners, spec.root_mode, spec.scaling))
+        codecs.append(PoseCodec.fit(motions, partners, spec.root_mode, spec.scaling,
+                                    spec.rest_frames, spec.canonical_side))
     return tuple(codecs)
 
 

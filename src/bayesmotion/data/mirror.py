@@ -310,7 +310,6 @@ def _reframe(motion: Motion, perm: np.ndarray, M: np.ndarray, A: np.ndarray,
     rot_idx, orders = sk.rotation_layout()
     pos_idx = sk.position_layout()
     out = motion.values.copy()
-    offsets = np.array(sk.offsets, dtype=np.float64)
     for j, p in enumerate(sk.parents):
         Ap = np.eye(3) if p < 0 else A[p]
         s = perm[j]
@@ -327,16 +326,34 @@ def _reframe(motion: Motion, perm: np.ndarray, M: np.ndarray, A: np.ndarray,
             ref = motion.values[:, cols] if near_original else np.zeros((len(Lm), 3))
             out[:, cols] = _euler_nearest(Lm, orders[j], ref)
         tm = t[:, s] @ (Ap.T @ M).T
-        offsets[j] = Ap.T @ M @ sk.offsets[s]
         for a in range(3):
             if pos_idx[j, a] >= 0:
                 out[:, pos_idx[j, a]] = tm[:, a]
+    return motion.replace(skeleton=_moved_skeleton(sk, perm, M, A), values=out)
+
+
+def _moved_skeleton(sk: Skeleton, perm: np.ndarray, M: np.ndarray, A: np.ndarray) -> Skeleton:
+    """The skeleton :func:`_reframe` gives its result: offsets ``A_p^T M t_perm(j)``, end sites
+    ``A_j^T M e_perm(j)``; ``sk`` itself when nothing moves (to 1e-9 of its size)."""
+    offsets = np.array([(np.eye(3) if p < 0 else A[p]).T @ M @ sk.offsets[perm[j]]
+                        for j, p in enumerate(sk.parents)])
     ends = {j: A[j].T @ M @ sk.end_sites[perm[j]] for j in sk.end_sites}
-    if not (np.allclose(offsets, sk.offsets, rtol=0, atol=1e-9 * sk.size())
+    if (np.allclose(offsets, sk.offsets, rtol=0, atol=1e-9 * sk.size())
             and all(np.allclose(e, sk.end_sites[j], rtol=0, atol=1e-9 * sk.size())
                     for j, e in ends.items())):
-        sk = Skeleton(sk.names, sk.parents, offsets, sk.channels, ends)
-    return motion.replace(skeleton=sk, values=out)
+        return sk
+    return Skeleton(sk.names, sk.parents, offsets, sk.channels, ends)
+
+
+def reframed_skeleton(skeleton: Skeleton, frames: np.ndarray) -> Skeleton:
+    """The skeleton that :func:`reframe` with ``frames`` gives a motion of ``skeleton``."""
+    n = skeleton.n_joints
+    return _moved_skeleton(skeleton, np.arange(n), np.eye(3), np.asarray(frames, float))
+
+
+def mirrored_skeleton(skeleton: Skeleton, plan: MirrorPlan) -> Skeleton:
+    """The skeleton that :func:`mirror` with ``plan`` gives a motion of ``skeleton``."""
+    return _moved_skeleton(skeleton, plan.perm, plan.reflection, plan.frames)
 
 
 def _swapped(name: str, a: str, b: str) -> list[str]:

@@ -21,12 +21,25 @@
   ``"partner"`` -- position relative to the midpoint of the two actors' roots, with the midpoint
   trajectory stored as the anchor (two-actor trials: the approach is the interaction);
   ``"absolute"`` -- unchanged.
+* **Joint frames and walking side** (optional, both label-free and stored with the codec, so a
+  new clip goes through the same steps): ``rest_frames=True`` turns each joint's frame to its
+  mean rotation over the training motions (:func:`bayesmotion.data.mirror.rest_frames`), which
+  takes joints such as Bandai's spine out of gimbal lock; ``canonical_side=True`` mirrors every
+  motion that moves to the actor's right (:func:`bayesmotion.data.mirror.canonical_side`), so
+  walks to either side share one representation. :meth:`PoseCodec.decode` turns the frames back
+  (the result is on the original rig) and mirrors back when told the clip was mirrored
+  (``Encoded.mirrored``); generated motion is on the canonical side.
 * **Constant channels** (range below ``1e-9`` over all training frames) are dropped and restored.
 * **Normalisation**: every kept channel is centred on its own mean and divided by a per-channel
   scale stored with the codec. By default (``scaling="type"``) the scale is the pooled standard
-  deviation of the channel's kind (rotations, root translation), so joint angles keep their
-  physical weighting; ``scaling="channel"`` standardises each channel alone, which inflates
-  near-constant channels (fingers, toes) to the weight of the hips.
+  deviation of the channel's kind (rotations, root translation, other positions), so joint
+  angles keep their physical weighting. The other positions' pool leaves out channels whose
+  standard deviation is below 1% of the kind's largest: exporters such as Bandai's write every
+  bone offset as a position channel, constant but for rounding (57 such channels, standard
+  deviations of 1e-5 to 0.02 cm), and pooled with them the hips' height (2.2 cm) was scaled up
+  to 7.5 standard units, half the weight of all 62 joint angles together.
+  ``scaling="channel"`` standardises each channel alone, which inflates near-constant channels
+  (fingers, toes) to the weight of the hips.
 
 ``decode(encode(m))`` reproduces the joint positions of ``m`` to float64 precision (tested to
 < 1e-6 of the skeleton's size on the real data).
@@ -34,6 +47,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, replace
 from typing import Literal, NamedTuple
 
@@ -57,11 +71,14 @@ class Encoded(NamedTuple):
         Y: (T, D) normalised pose features.
         anchor: what decoding needs besides Y: (2,) first horizontal root position
             ("velocity"), (3,) first horizontal position and heading in radians ("heading"),
-            (T, 2) partner midpoint ("partner"), or (0,) ("absolute").
+            (T, 2) partner midpoint ("partner"), or (0,) ("absolute"); in the mirrored world
+            when ``mirrored``.
+        mirrored: the codec mirrored the motion to its canonical side before encoding it.
     """
 
     Y: np.ndarray
     anchor: np.ndarray
+    mirrored: bool = False
 
 
 def _root_horizontal_columns(skeleton: Skeleton, mover: int = 0) -> np.ndarray:
@@ -146,6 +163,14 @@ class PoseCodec:
             None (files written before it existed): no shift.
         fps: frame rate of the training motions, the default of :meth:`decode` (None in files
             written before it was stored).
+        frames: (J, 3, 3) per-joint rest frames applied before encoding
+            (:func:`bayesmotion.data.mirror.reframe`), or None.
+        side: the :class:`bayesmotion.data.mirror.MirrorPlan` that mirrors motions moving to
+            the actor's right before encoding, or None (no canonical side).
+        side_threshold: a motion is mirrored when its lateral ratio is below minus this.
+        fold_root: the translation of the mover's ancestors is moved into the mover's own
+            position channels before encoding (:func:`fold_ancestor_translation`); False in
+            files written before it existed.
     """
 
     skeleton: Skeleton
@@ -159,6 +184,10 @@ class PoseCodec:
     heading_axis: int = -1
     branch: np.ndarray | None = None
     fps: float | None = None
+    frames: np.ndarray | None = None
+    side: object | None = None
+    side_threshold: float = 0.15
+    fold_root: bool = False
 
     @property
     def dim(self) -> int:
@@ -178,7 +207,8 @@ class PoseCodec:
     # ---------------------------------------------------------------- fitting
     @classmethod
     def fit(cls, motions, partners=None, root_mode: RootMode = "velocity",
-            scaling: str = "type") -> PoseCodec:
+            scaling: str = "type", rest_frames: bool = False, canonical_side: bool = False,
+            side_threshold: float = 0.15) -> PoseCodec:
         """Fit drops, means and scales on training motions (one actor slot).
 
         Args:
@@ -186,6 +216,13 @@ class PoseCodec:
             partners: the partner's motion for each (``root_mode="partner"`` only).
             root_mode: see the module docstring.
             scaling: "type" (pooled per channel kind) or "channel".
+            rest_frames: turn each joint's frame to its mean rotation over ``motions`` (after
+                the canonical side) before encoding (the mover and its ancestors keep theirs).
+            canonical_side: mirror every motion that moves to the actor's right (lateral ratio
+                below ``-side_threshold``) before encoding, with one plan fitted on ``motions``;
+                needs left-right joint names, and not ``root_mode="partner"`` (mirroring one
+                actor of a pair would break the interaction).
+            side_threshold: see ``canonical_side``.
         """
         motions = list(motions)
         if not motions:
@@ -200,6 +237,24 @@ class PoseCodec:
         sk = motions[0].skeleton
         for m in motions[1:]:
             check_layout(sk, m.skeleton)
+        mover = find_mover(motions)
+        motions = [fold_ancestor_translation(m, mover) for m in motions]
+        side, frames = None, None
+        if canonical_side:
+            from . import mirror as mr
+
+            if root_mode == "partner":
+                raise BayesmotionError("canonical_side mirrors one actor alone; it cannot be "
+                                       "used with root_mode='partner' (two-actor trials)")
+            if not (np.isfinite(side_threshold) and side_threshold >= 0):
+                raise BayesmotionError(f"side_threshold must be >= 0, got {side_threshold!r}")
+            side = mr.mirror_plan(sk, motions)
+            motions, _ = mr.canonical_side(motions, side_threshold, side)
+        if rest_frames:
+            from . import mirror as mr
+
+            frames = mr.rest_frames(motions)
+            motions = [mr.reframe(m, frames) for m in motions]
         mover = find_mover(motions)
         axis = -1
         if root_mode == "heading":
@@ -227,9 +282,12 @@ class PoseCodec:
             scale = np.ones_like(mean)
             for k in np.unique(kind):
                 sel = kind == k
-                scale[sel] = np.sqrt(np.mean(std[sel] ** 2)) or 1.0
+                pool = sel
+                if k == 2:  # bone offsets written as channels: constant but for rounding
+                    pool = sel & (std >= 0.01 * std[sel].max())
+                scale[sel] = np.sqrt(np.mean(std[pool] ** 2)) or 1.0
         return cls(sk, root_mode, keep, raw[0].copy(), mean, scale, scaling, mover, axis, branch,
-                   float(motions[0].fps))
+                   float(motions[0].fps), frames, side, float(side_threshold), True)
 
     def _kinds(self) -> np.ndarray:
         """(C[+1],) 0 for rotation channels, 1 for root horizontal, 2 for other positions,
@@ -316,14 +374,32 @@ class PoseCodec:
         v[:, h] = np.concatenate([a[None, :2], a[:2] + np.cumsum(vel[1:] / fps, 0)])
         return v
 
+    def prepare(self, motion: Motion) -> tuple[Motion, bool]:
+        """The motion on the codec's canonical side and in its joint frames (what the channel
+        transforms see), and whether it was mirrored."""
+        mirrored = False
+        if self.fold_root:
+            motion = fold_ancestor_translation(motion, self.mover)
+        if self.side is not None and motion.n_frames >= 2:
+            from .mirror import lateral_ratio, mirror
+
+            if lateral_ratio(motion, self.side) < -self.side_threshold:
+                motion, mirrored = mirror(motion, self.side), True
+        if self.frames is not None:
+            from .mirror import reframe
+
+            motion = reframe(motion, self.frames)
+        return motion, mirrored
+
     def encode(self, motion: Motion, partner: Motion | None = None) -> Encoded:
-        """Motion -> (Y (T, D), anchor)."""
+        """Motion -> (Y (T, D), anchor, mirrored)."""
         check_layout(self.skeleton, motion.skeleton)
+        motion, mirrored = self.prepare(motion)
         v, anchor = self._transform(motion, partner)
-        return Encoded((v[:, self.keep] - self.mean) / self.scale, anchor)
+        return Encoded((v[:, self.keep] - self.mean) / self.scale, anchor, mirrored)
 
     def decode(self, Y, anchor=None, skeleton: Skeleton | None = None, fps: float | None = None,
-               name: str = "") -> Motion:
+               name: str = "", mirrored: bool = False) -> Motion:
         """(T, D) -> Motion.
 
         Args:
@@ -333,8 +409,70 @@ class PoseCodec:
             skeleton: skeleton whose offsets to use (defaults to the codec's).
             fps: frame rate of the result (also converts velocities back to positions);
                 default: the rate the codec was fitted at, so ``decode(*encode(m))`` is ``m``
-                for a motion at that rate.
+                for a motion at that rate (to float precision in its joint positions when the
+                codec has rest frames or a canonical side).
+            mirrored: mirror the result back (``Encoded.mirrored``); needs a canonical side.
         """
+        sk = self.skeleton if skeleton is None else skeleton
+        check_layout(self.skeleton, sk)
+        return self.from_rig(self.decode_rig(Y, anchor, sk, fps, name, mirrored), sk, mirrored)
+
+    def rig_skeleton(self, skeleton: Skeleton | None = None, mirrored: bool = False) -> Skeleton:
+        """The skeleton of ``skeleton``'s motions as the channel transforms see them (mirrored,
+        then in the rest frames)."""
+        from .mirror import mirrored_skeleton, reframed_skeleton
+
+        sk = self.skeleton if skeleton is None else skeleton
+        if mirrored:
+            self._check_side()
+            sk = mirrored_skeleton(sk, self.side)
+        return sk if self.frames is None else reframed_skeleton(sk, self.frames)
+
+    def from_rig(self, motion: Motion, skeleton: Skeleton | None = None,
+                 mirrored: bool = False) -> Motion:
+        """A motion of :meth:`decode_rig` back on ``skeleton``'s rig: the rest frames turned
+        back, and mirrored back when ``mirrored``. Joint positions are unchanged."""
+        from .mirror import mirror, reframe
+
+        sk = self.skeleton if skeleton is None else skeleton
+        if self.frames is not None:
+            motion = reframe(motion, np.swapaxes(self.frames, -1, -2))
+            motion = motion.replace(skeleton=sk if not mirrored else motion.skeleton)
+        if mirrored:
+            self._check_side()
+            motion = mirror(motion, self.side).replace(name=motion.name)
+        return motion
+
+    def _check_side(self) -> None:
+        if self.side is None:
+            raise BayesmotionError("mirrored=True needs a codec with a canonical side "
+                                   "(PoseCodec.fit(..., canonical_side=True))")
+
+    def channel_variance(self, motion: Motion, var: np.ndarray) -> np.ndarray:
+        """Channel variances (T, C) of a :meth:`decode_rig` motion, carried to the original rig
+        (:meth:`from_rig`, not mirrored) to first order: the rotation channels of a joint whose
+        frame turned get ``sum_i J_ki^2 var_i`` with ``J`` the Jacobian of its original Euler
+        angles in its rig angles (cross-covariances dropped). Other channels are unchanged."""
+        var = np.array(var, dtype=np.float64)
+        if self.frames is None:
+            return var
+        sk = motion.skeleton
+        rot_idx, orders = sk.rotation_layout()
+        eye = np.eye(3)
+        for j, p in enumerate(sk.parents):
+            Bp = eye if p < 0 else self.frames[p]
+            if len(orders[j]) != 3 or (np.allclose(Bp, eye) and np.allclose(self.frames[j], eye)):
+                continue
+            cols = rot_idx[j, :3]
+            J = _euler_jacobian(orders[j], motion.values[:, cols], Bp, self.frames[j])
+            var[:, cols] = np.einsum("tki,ti->tk", J ** 2, var[:, cols])
+        return var
+
+    def decode_rig(self, Y, anchor=None, skeleton: Skeleton | None = None,
+                   fps: float | None = None, name: str = "", mirrored: bool = False) -> Motion:
+        """(T, D) -> Motion in the codec's frames and side, on :meth:`rig_skeleton`: what
+        :meth:`decode` returns before :meth:`from_rig` (the same motion when the codec has
+        neither rest frames nor a canonical side)."""
         if fps is None:
             if self.fps is None:
                 raise BayesmotionError("this codec does not know its frame rate (saved before "
@@ -347,6 +485,7 @@ class PoseCodec:
             raise BayesmotionError(f"decode expects Y of shape (T, {self.dim}), got {Y.shape}")
         sk = self.skeleton if skeleton is None else skeleton
         check_layout(self.skeleton, sk)
+        sk = self.rig_skeleton(sk, mirrored)
         v = np.tile(self.constant, (Y.shape[0], 1))
         v[:, self.keep] = Y * self.scale + self.mean
         h = self.horizontal_columns(sk)
@@ -367,22 +506,106 @@ class PoseCodec:
                f"{prefix}mean": self.mean, f"{prefix}scale": self.scale}
         if self.branch is not None:
             out[f"{prefix}branch"] = self.branch
+        if self.frames is not None:
+            out[f"{prefix}frames"] = self.frames
+        if self.side is not None:
+            out.update({f"{prefix}side_{k}": np.asarray(v)
+                        for k, v in self.side._asdict().items()})
         return out
 
     def to_meta(self) -> dict:
         return {"root_mode": self.root_mode, "scaling": self.scaling, "mover": self.mover,
                 "heading_axis": self.heading_axis, "skeleton": self.skeleton.to_dict(),
-                "fps": self.fps}
+                "fps": self.fps, "side_threshold": self.side_threshold,
+                "fold_root": self.fold_root}
 
     @classmethod
     def from_saved(cls, meta: dict, arrays, prefix: str) -> PoseCodec:
+        side = None
+        if f"{prefix}side_perm" in arrays:
+            from .mirror import MirrorPlan
+
+            side = MirrorPlan(np.asarray(arrays[f"{prefix}side_perm"], dtype=int),
+                              np.asarray(arrays[f"{prefix}side_reflection"], dtype=float),
+                              np.asarray(arrays[f"{prefix}side_frames"], dtype=float),
+                              np.asarray(arrays[f"{prefix}side_left"], dtype=bool))
         return cls(Skeleton.from_dict(meta["skeleton"]), meta["root_mode"],
                    np.asarray(arrays[f"{prefix}keep"], dtype=int),
                    np.asarray(arrays[f"{prefix}constant"]), np.asarray(arrays[f"{prefix}mean"]),
                    np.asarray(arrays[f"{prefix}scale"]), meta.get("scaling", "type"),
                    int(meta.get("mover", 0)), int(meta.get("heading_axis", -1)),
                    np.asarray(arrays[f"{prefix}branch"]) if f"{prefix}branch" in arrays
-                   else None, None if meta.get("fps") is None else float(meta["fps"]))
+                   else None, None if meta.get("fps") is None else float(meta["fps"]),
+                   np.asarray(arrays[f"{prefix}frames"], dtype=float)
+                   if f"{prefix}frames" in arrays else None, side,
+                   float(meta.get("side_threshold", 0.15)), bool(meta.get("fold_root", False)))
+
+
+def fold_ancestor_translation(motion: Motion, mover: int) -> Motion:
+    """``motion`` with the position channels of ``mover``'s ancestors at zero and their
+    translation carried by ``mover``'s own position channels instead: ``mover`` and every joint
+    below it keep their world positions (to float precision), its ancestors rest at the origin.
+    The motion itself comes back when those channels are already zero or ``mover`` lacks one of
+    its X/Y/Z position channels.
+
+    Bandai's exporter keeps a ``joint_Root`` at the origin and translates ``Hips`` below it in
+    every walk but one: in the short walk-back normal clip ``joint_Root`` carries the whole
+    translation (120 cm in 31 frames). Left as it is, that clip's ``joint_Root:Zposition``
+    channel is kept as a pose channel and, scaled with the other non-root positions (a few cm),
+    reaches 125 standard deviations, dwarfing every other channel of every clip."""
+    sk = motion.skeleton
+    pos = sk.position_layout()
+    cols, j = [], sk.parents[mover]
+    while j >= 0:
+        cols += [int(c) for c in pos[j] if c >= 0]
+        j = sk.parents[j]
+    v = motion.values
+    if not cols or np.min(pos[mover]) < 0 or not np.any(v[:, cols]):
+        return motion
+    from .fk import numpy_positions
+    from .mirror import _world_and_local
+
+    flat = v.copy()
+    flat[:, cols] = 0.0
+    parent = sk.parents[mover]
+    delta = numpy_positions(sk, v)[:, parent] - numpy_positions(sk, flat)[:, parent]
+    G = _world_and_local(sk, flat)[0][:, parent]
+    flat[:, pos[mover]] += np.einsum("tji,tj->ti", G, delta)
+    return motion.replace(values=flat)
+
+
+def _euler_jacobian(order: str, angles: np.ndarray, Bp: np.ndarray, Bj: np.ndarray,
+                    step: float = 1e-4) -> np.ndarray:
+    """(T, 3, 3) d a / d a' by central differences (degrees per degree), where ``a`` are the
+    Euler angles of ``Bp L(a') Bj^T`` and ``L(a')`` the rotation of ``angles`` (T, 3); each
+    perturbed rotation's angles are taken on the branch nearest the unperturbed ones."""
+
+    def wrap(x):
+        return (x + 180.0) % 360.0 - 180.0
+
+    def euler(a):
+        R = Bp @ euler_matrices(order, a) @ Bj.T
+        return Rotation.from_matrix(R).as_euler(order.upper(), degrees=True)
+
+    def near(e, base):
+        if len(set(order)) != 3:
+            return wrap(e - base)
+        alt = e + np.array([180.0, 0.0, 180.0])
+        alt[:, 1] = 180.0 - e[:, 1]
+        d1, d2 = wrap(e - base), wrap(alt - base)
+        pick = np.sum(d1 ** 2, 1) <= np.sum(d2 ** 2, 1)
+        return np.where(pick[:, None], d1, d2)
+
+    J = np.empty((angles.shape[0], 3, 3))
+    with warnings.catch_warnings():  # at gimbal lock scipy warns; the rotation is still exact
+        warnings.filterwarnings("ignore", "Gimbal lock", UserWarning)
+        base = euler(angles)
+        for i in range(3):
+            d = np.zeros(3)
+            d[i] = step
+            J[:, :, i] = (near(euler(angles + d), base)
+                          - near(euler(angles - d), base)) / (2 * step)
+    return J
 
 
 def _rotate_horizontal(R: np.ndarray, hv: np.ndarray) -> np.ndarray:
