@@ -6,7 +6,7 @@ The one-actor H-GPDM (emotion in the interaction and dynamics layers) is fitted 
 16 Bandai walk clips (walk, walk-back, walk-left, walk-right x neutral/happy/angry/sad; quick:
 the 8 of walk-left and walk-right), resampled to ``fps`` and cropped to ``model_frames``.
 Two label-free data steps come first (``bayesmotion.data.mirror``; both read poses only, never
-labels, and both pool the 16 clips' poses, held-out clip included, as the full fit does):
+labels; since session 21 they are the codec's, fitted on the training clips of each fit):
 ``canonical_side`` mirrors the clips that walk to the actor's right, so a walk to the right
 stands in for the missing walk to the left of the same emotion; ``rest_frames``/``reframe``
 turn each joint's frame to its mean rotation, which takes the spine out of gimbal lock (its
@@ -15,7 +15,11 @@ Euler angles swung by up to a full turn within a clip). Session 20: neither step
 68.8% (right 4/4, left 3/4) and, rerun with the final code, 56.2% (right 4/4, left 2/4, the
 walks ahead and back losing what the sideways walks gained): the +-2-clip fragility, no
 reliable gain; mirroring helps the walks to the right only once the angles are well
-conditioned.
+conditioned. Session 21: both steps live in the model's codec (``HGPDM(rest_frames=True,
+canonical_side=True)``), so each fold fits them on its training clips and the held-out clip goes
+through them as any new clip would; the codec also folds ``joint_Root``'s translation (the
+walk-back normal clip) into ``Hips`` and scales the hips' height without the bone-offset
+channels: 50.0% (8/16), within the fragility.
 ``bayesmotion.evaluate.leave_one_out``
 then refits it without each clip (warm-started, ``refit_iter`` L-BFGS iterations), infers the
 held-out clip's emotion with ``infer_emotion`` and scores it; the affective-feature classifier
@@ -34,10 +38,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
-
-import numpy as np
 
 HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
@@ -63,7 +64,6 @@ QUICK = {"contents": WALKS[2:], "fps": 7.5, "model_frames": 20, "max_iter": 30,
 def run(quick: bool, root: str | Path | None = None) -> dict:
     import bayesmotion  # noqa: F401  (float64 on)
     from bayesmotion.data.bandai import load_bandai
-    from bayesmotion.data.mirror import canonical_side, reframe, rest_frames
     from bayesmotion.data.motion import MotionDataset
     from bayesmotion.evaluate import format_confusion, leave_one_out
     from bayesmotion.model import HGPDM
@@ -75,23 +75,15 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
         return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
     t0 = time.perf_counter()
     data = load_bandai(root, content=cfg["contents"], fps=cfg["fps"])
-    mirrored = np.zeros(len(data), dtype=bool)
-    if cfg["canonical_side"]:
-        motions, mirrored = canonical_side([t.actors[0] for t in data])
-        data = MotionDataset(tuple(replace(t, actors=(m,)) for t, m in zip(data, motions,
-                                                                             strict=True)),
-                             data.levels, name=data.name)
-    if cfg["rest_frames"]:
-        B = rest_frames([t.actors[0] for t in data])
-        data = MotionDataset(tuple(replace(t, actors=(reframe(t.actors[0], B),))
-                                   for t in data), data.levels, name=data.name)
     clips = MotionDataset(tuple(t.select(slice(0, cfg["model_frames"])) for t in data),
                           {"emotion": data.levels["emotion"]}, name="Bandai walks")
     spec = HGPDM(latent_dim=6, interaction_dim=3, interaction_factors=("emotion",),
-                 dynamics_factors=("emotion",))
+                 dynamics_factors=("emotion",), rest_frames=cfg["rest_frames"],
+                 canonical_side=cfg["canonical_side"])
     t_fit = time.perf_counter()
     full = spec.fit(clips, max_iter=cfg["max_iter"], progress=False)
     t_fit = time.perf_counter() - t_fit
+    mirrored = [full.codecs[0].encode(t.actors[0]).mirrored for t in clips]
     res = leave_one_out(clips, full, refit_iter=cfg["refit_iter"], n_steps=cfg["n_steps"],
                         calibrate=True, infer_kwargs={"emotion_starts": cfg["emotion_starts"],
                                                       "max_iter": cfg["projection_iter"]})
