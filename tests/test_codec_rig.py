@@ -11,6 +11,7 @@ from bayesmotion.data.mirror import mirror, mirror_plan
 from bayesmotion.data.representation import PoseCodec, fold_ancestor_translation
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.generate import generate
+from bayesmotion.infer import infer_emotion
 from bayesmotion.io import load
 from bayesmotion.model import HGPDM
 from tests.test_mirror import ROOT6, ROT3, _half_turned_skeleton, _random_motion
@@ -149,6 +150,10 @@ def test_model_stores_the_rig_steps_and_new_clips_go_through_them(tmp_path):
     e0, e1 = c0.encode(clips[2]), c1.encode(clips[2])
     assert e1.mirrored
     np.testing.assert_array_equal(e1.Y, e0.Y)
+    for clip, flag in ((clips[2], True), (clips[0], False)):
+        ep = infer_emotion(back, clip, n_steps=20, max_iter=5, emotion_starts="nearest",
+                           latent_uncertainty=False)
+        assert ep.info["mirrored"] == [flag]
     # generation decodes to the original rig: its angles on the original skeleton give the
     # positions (computed with their variance in the rest frames); variances are finite
     r = generate(back, "happy", n_frames=8, n_samples=2, seed=0)

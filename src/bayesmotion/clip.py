@@ -72,6 +72,12 @@ def clip_to_trial(model, clip) -> Trial:
 
 def clip_poses(model, clip) -> list[np.ndarray]:
     """Per actor, (T, D_a) normalised poses of a clip (arrays pass through after checks)."""
+    return clip_poses_and_sides(model, clip)[0]
+
+
+def clip_poses_and_sides(model, clip) -> tuple[list[np.ndarray], list[bool]]:
+    """:func:`clip_poses` and, per actor, whether the codec mirrored the clip to its canonical
+    side (``HGPDM(canonical_side=True)``; always False for arrays, already in model space)."""
     if isinstance(clip, np.ndarray):
         arr = clip[None] if clip.ndim == 2 else clip
         if arr.ndim != 3 or arr.shape[0] != model.n_actors:
@@ -83,12 +89,12 @@ def clip_poses(model, clip) -> list[np.ndarray]:
                                        f"the model expects {model.codecs[a].dim}")
         if not np.all(np.isfinite(arr)):
             raise BayesmotionError("pose array has NaN or infinite values")
-        return [np.asarray(x, dtype=np.float64) for x in arr]
+        return [np.asarray(x, dtype=np.float64) for x in arr], [False] * model.n_actors
     if isinstance(clip, str | os.PathLike) and not Path(clip).exists():
         raise BayesmotionError(f"{clip}: no such file")
     trial = clip_to_trial(model, clip)
-    out = []
+    enc = []
     for a, codec in enumerate(model.codecs):
         partner = trial.actors[1 - a] if codec.root_mode == "partner" else None
-        out.append(codec.encode(trial.actors[a], partner).Y)
-    return out
+        enc.append(codec.encode(trial.actors[a], partner))
+    return [e.Y for e in enc], [bool(e.mirrored) for e in enc]

@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 
-from .clip import clip_poses
+from .clip import clip_poses, clip_poses_and_sides
 from .errors import BayesmotionError
 from .infer_density import (
     expanded_log_density,
@@ -109,7 +109,8 @@ class EmotionPosterior:
         samples: (n_chains, n_draws, K) emotion coordinates on the simplex.
         couple_levels / couple_samples: the same for the couple factor, or None.
         latents: X (A, T, Q_X), I (T, Q_I) at the MAP, with X_sd, I_sd (diagonal Laplace).
-        log_prob: (n_chains, n_draws). info: n_frames, seconds, acceptance, tau, map objective,
+        log_prob: (n_chains, n_draws). info: n_frames, mirrored (per actor: the model's
+            canonical side mirrored the clip), seconds, acceptance, tau, map objective,
             likelihood_power.
         log_likelihood: emotion coordinates (n, K) -> (n,) the clip's untempered
             log-likelihood (closed simplex), when the emotion was the only inferred factor of a
@@ -457,7 +458,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
         stages[name] = now - last[0]
         last[0] = now
 
-    Ys = clip_poses(model, clip)
+    Ys, mirrored = clip_poses_and_sides(model, clip)
     if frames is not None:
         ok = isinstance(frames, slice)
         if not ok and not isinstance(frames, int | np.integer | str):
@@ -546,7 +547,8 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
         styles[k[2:]] = np.swapaxes(s.reshape(*u.shape[:2], n + 1), 0, 1)
         start += n
     stage("sample")
-    info = {"n_frames": T, "seconds": time.perf_counter() - t0, "stage_seconds": stages,
+    info = {"n_frames": T, "mirrored": mirrored,
+            "seconds": time.perf_counter() - t0, "stage_seconds": stages,
             "tau": tau, "likelihood_power": float(likelihood_power),
             "acceptance": float(np.mean(sampler.acceptance_fraction)),
             "map_objective": float(res.fun), "map_iterations": int(res.nit),
