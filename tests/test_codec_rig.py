@@ -2,6 +2,8 @@
 canonical walking side stored with the codec (and the model), so that a new clip is encoded as
 the training clips were and decoding returns to the original rig; variances carried to it."""
 
+import io
+
 import numpy as np
 import pytest
 
@@ -9,11 +11,11 @@ from bayesmotion.data import Motion, MotionDataset, Skeleton, Trial
 from bayesmotion.data.bandai import load_bandai
 from bayesmotion.data.mirror import mirror, mirror_plan
 from bayesmotion.data.representation import PoseCodec, fold_ancestor_translation
-from bayesmotion.errors import BayesmotionError
+from bayesmotion.errors import BayesmotionError, ModelFileError
 from bayesmotion.generate import generate
 from bayesmotion.infer import infer_emotion
 from bayesmotion.io import load
-from bayesmotion.model import HGPDM
+from bayesmotion.model import HGPDM, fit_codecs
 from tests.test_mirror import ROOT6, ROT3, _half_turned_skeleton, _random_motion
 
 WALKS = ("walk", "walk-back", "walk-left", "walk-right")
@@ -94,14 +96,55 @@ def test_rest_frames_and_canonical_side_round_trip_to_the_original_rig():
     assert np.abs(np.concatenate([m.values for m in clips])[:, 6:].mean(0)).max() > 40.0
 
 
-def test_canonical_side_and_frames_are_rejected_where_they_cannot_work():
+def test_canonical_side_and_frames_are_rejected_where_they_cannot_work(tmp_path):
     sk, clips = _walks()
     with pytest.raises(BayesmotionError, match="partner"):
         PoseCodec.fit(clips, clips, root_mode="partner", canonical_side=True)
+    # two actors mirrored each alone would break their interaction, whatever the root mode
+    pairs = MotionDataset(tuple(Trial((a, b), {"emotion": "neutral"}, f"p{i}")
+                                for i, (a, b) in enumerate(zip(clips, clips[1:], strict=False))))
+    spec = HGPDM(root_mode="heading", canonical_side=True).resolved(pairs)
+    with pytest.raises(BayesmotionError, match="one-actor clips; this dataset has 2 actors"):
+        fit_codecs(spec, pairs)
     codec = PoseCodec.fit(clips, root_mode="heading")
     e = codec.encode(clips[0])
     with pytest.raises(BayesmotionError, match="canonical side"):
         codec.decode(e.Y, e.anchor, mirrored=True)
+    with pytest.raises(BayesmotionError, match="skeleton must be a Skeleton"):
+        codec.decode(*e)  # Encoded has three fields: mirrored goes by name
+    # a skeleton without left-right names cannot have a canonical side: say what to do
+    plain = Skeleton(("a", "b", "c"), (-1, 0, 1), np.array([[0, 0, 0], [0, 1, 0], [1, 0, 0.]]),
+                     (ROOT6, ROT3, ROT3), {2: np.array([1.0, 0, 0])})
+    m = Motion(plain, np.c_[np.arange(10.0), np.zeros((10, 11))], 30.0)
+    with pytest.raises(BayesmotionError, match="canonical_side needs left-right joint pairs"):
+        PoseCodec.fit([m], root_mode="heading", canonical_side=True)
+
+
+def test_corrupt_rig_arrays_in_a_model_file_are_refused(tmp_path):
+    import zipfile
+
+    _, clips = _walks()
+    data = MotionDataset(tuple(Trial((m,), {"emotion": e}, f"t{i}") for i, (m, e) in
+                               enumerate(zip(clips, ("neutral", "happy") * 2 + ("neutral",),
+                                             strict=True))))
+    model = HGPDM(latent_dim=2, interaction_dim=2, rest_frames=True,
+                  canonical_side=True).fit(data, max_iter=1, progress=False)
+    good = tmp_path / "good.npz"
+    model.save(good)
+    F = model.codecs[0].frames
+    for entry, value, match in (("codec0/frames", F[:3], "rest frames must be finite"),
+                                ("codec0/frames", 2.0 * F, "not rotations"),
+                                ("codec0/side_perm", np.zeros(F.shape[0], int), "pairing")):
+        bad = tmp_path / "bad.npz"
+        buf = io.BytesIO()
+        np.save(buf, value)
+        with zipfile.ZipFile(good) as zin, zipfile.ZipFile(bad, "w") as zout:
+            for item in zin.infolist():
+                if item.filename != entry + ".npy":
+                    zout.writestr(item, zin.read(item.filename))
+            zout.writestr(entry + ".npy", buf.getvalue())
+        with pytest.raises(ModelFileError, match=match):
+            load(bad)
 
 
 def test_channel_variance_matches_monte_carlo_through_the_frames():
@@ -186,6 +229,26 @@ def test_bandai_walks_encode_without_outlier_channels(bandai_root):
         np.testing.assert_allclose(back.positions()[:, 1:], m.positions()[:, 1:],
                                    atol=1e-8 * m.skeleton.size())
         Y.append(e.Y)
+        if not e.mirrored:  # angles come back on the data's own branch (up to whole turns)
+            rot = m.rotation_mask()
+            turned = (back.values[:, rot] - m.values[:, rot] + 180.0) % 360.0 - 180.0
+            np.testing.assert_allclose(turned, 0.0, atol=1e-6)
+    # noise on Y spreads the decoded angles as channel_variance predicts: no branch flips
+    # between draws (before the decoder took the training clips' branch, the spine's angles
+    # jumped between its two Euler solutions: 74-77 deg of spread against 5.7 predicted)
+    m, e = clips[0], codec.encode(clips[0])
+    rng = np.random.default_rng(0)
+    draws = np.stack([codec.decode(e.Y + rng.normal(0.0, 0.05, e.Y.shape), e.anchor,
+                                   m.skeleton, m.fps).values for _ in range(100)])
+    rig = codec.decode_rig(e.Y, e.anchor, m.skeleton, m.fps)
+    var = np.zeros_like(rig.values)
+    kept = codec.keep < var.shape[1]
+    var[:, codec.keep[kept]] = (0.05 * codec.scale[kept]) ** 2
+    predicted = np.sqrt(codec.channel_variance(rig, var))[:, m.rotation_mask()]
+    spread = draws.std(0)[:, m.rotation_mask()]
+    assert spread.max() < 1.5 * predicted.max()
+    sel = predicted > 0.5
+    np.testing.assert_allclose(spread[sel], predicted[sel], rtol=0.35)
     Y = np.concatenate(Y)
     assert np.abs(Y).max() < 15.0
     assert 0.5 < Y[:, hips_y].std() < 2.0

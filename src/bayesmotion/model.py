@@ -151,6 +151,10 @@ class HGPDM:
 # --------------------------------------------------------------------------- data preparation
 def fit_codecs(spec: HGPDM, dataset: MotionDataset) -> tuple[PoseCodec, ...]:
     """One PoseCodec per actor slot, fitted on all training trials."""
+    if spec.canonical_side and dataset.n_actors != 1:
+        raise BayesmotionError(f"canonical_side mirrors one-actor clips; this dataset has "
+                               f"{dataset.n_actors} actors per trial, and mirroring each alone "
+                               f"would break their interaction")
     codecs = []
     for a in range(dataset.n_actors):
         motions = [t.actors[a] for t in dataset]

@@ -277,7 +277,7 @@ def rest_frames(motions: Sequence[Motion], fixed: Iterable[int] | None = None) -
     return B
 
 
-def reframe(motion: Motion, frames: np.ndarray) -> Motion:
+def reframe(motion: Motion, frames: np.ndarray, reference: np.ndarray | None = None) -> Motion:
     """``motion`` on the same joints with each joint's frame turned by ``frames`` (J, 3, 3).
 
     World positions are unchanged (to float precision); local rotations become
@@ -285,7 +285,11 @@ def reframe(motion: Motion, frames: np.ndarray) -> Motion:
     order on the branch nearest zero. With :func:`rest_frames` the angles stay near zero, away
     from gimbal lock: Bandai's spine sits at 85 degrees in its middle Euler angle, where its
     first and third angles trade off freely from clip to clip (they range over 25-141 degrees
-    with their sum near zero)."""
+    with their sum near zero).
+
+    ``reference`` (C,) channel values: take each joint's angles on the branch and turn nearest
+    these instead of zero (e.g. the circular mean of clips on the target frames, when turning
+    frames back)."""
     frames = np.asarray(frames, dtype=np.float64)
     if frames.shape != (motion.skeleton.n_joints, 3, 3):
         raise BayesmotionError(f"frames must be ({motion.skeleton.n_joints}, 3, 3) for this "
@@ -294,12 +298,17 @@ def reframe(motion: Motion, frames: np.ndarray) -> Motion:
     if not (np.allclose(frames @ np.swapaxes(frames, -1, -2), eye, atol=1e-9)
             and np.allclose(np.linalg.det(frames), 1.0, atol=1e-9)):
         raise BayesmotionError("frames must be rotations (orthonormal, determinant +1)")
+    if reference is not None:
+        reference = np.asarray(reference, dtype=np.float64)
+        if reference.shape != (motion.skeleton.n_channels,):
+            raise BayesmotionError(f"reference must have one value per channel "
+                                   f"({motion.skeleton.n_channels},), got {reference.shape}")
     return _reframe(motion, np.arange(motion.skeleton.n_joints), np.eye(3), frames,
-                    near_original=False)
+                    near_original=False, reference=reference)
 
 
 def _reframe(motion: Motion, perm: np.ndarray, M: np.ndarray, A: np.ndarray,
-             near_original: bool) -> Motion:
+             near_original: bool, reference: np.ndarray | None = None) -> Motion:
     """Joint ``j`` takes partner ``perm[j]``'s motion reflected by ``M``, in frame ``A[j]``:
     local rotations ``A_p^T M L_perm(j) M A_j``, translations ``A_p^T M t_perm(j)``."""
     sk = motion.skeleton
@@ -323,7 +332,12 @@ def _reframe(motion: Motion, perm: np.ndarray, M: np.ndarray, A: np.ndarray,
                                        "mirroring and reframing need all three")
             Lm = Ap.T @ M @ L[:, s] @ M @ A[j]
             cols = rot_idx[j, :n]
-            ref = motion.values[:, cols] if near_original else np.zeros((len(Lm), 3))
+            if near_original:
+                ref = motion.values[:, cols]
+            elif reference is not None:
+                ref = np.broadcast_to(reference[cols], (len(Lm), 3))
+            else:
+                ref = np.zeros((len(Lm), 3))
             out[:, cols] = _euler_nearest(Lm, orders[j], ref)
         tm = t[:, s] @ (Ap.T @ M).T
         for a in range(3):

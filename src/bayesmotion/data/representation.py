@@ -171,6 +171,9 @@ class PoseCodec:
         fold_root: the translation of the mover's ancestors is moved into the mover's own
             position channels before encoding (:func:`fold_ancestor_translation`); False in
             files written before it existed.
+        angle_reference: (C,) circular mean of every channel over the training motions on
+            their own rig (after the canonical side, before the rest frames): decoding turns
+            the frames back onto the Euler branch and turn nearest it (with ``frames`` only).
     """
 
     skeleton: Skeleton
@@ -188,6 +191,7 @@ class PoseCodec:
     side: object | None = None
     side_threshold: float = 0.15
     fold_root: bool = False
+    angle_reference: np.ndarray | None = None
 
     @property
     def dim(self) -> int:
@@ -248,12 +252,21 @@ class PoseCodec:
                                        "used with root_mode='partner' (two-actor trials)")
             if not (np.isfinite(side_threshold) and side_threshold >= 0):
                 raise BayesmotionError(f"side_threshold must be >= 0, got {side_threshold!r}")
-            side = mr.mirror_plan(sk, motions)
+            try:
+                side = mr.mirror_plan(sk, motions)
+            except BayesmotionError as e:
+                raise BayesmotionError(f"canonical_side needs left-right joint pairs read from "
+                                       f"the joint names: {e}. Rename the joints, or mirror the "
+                                       f"clips yourself with bayesmotion.mirror(motion, "
+                                       f"mirror_plan(skeleton, pairs=...))") from None
             motions, _ = mr.canonical_side(motions, side_threshold, side)
+        reference = None
         if rest_frames:
             from . import mirror as mr
 
             frames = mr.rest_frames(motions)
+            rad = np.deg2rad(np.concatenate([m.values for m in motions]))
+            reference = np.rad2deg(np.arctan2(np.sin(rad).mean(0), np.cos(rad).mean(0)))
             motions = [mr.reframe(m, frames) for m in motions]
         mover = find_mover(motions)
         axis = -1
@@ -287,7 +300,7 @@ class PoseCodec:
                     pool = sel & (std >= 0.01 * std[sel].max())
                 scale[sel] = np.sqrt(np.mean(std[pool] ** 2)) or 1.0
         return cls(sk, root_mode, keep, raw[0].copy(), mean, scale, scaling, mover, axis, branch,
-                   float(motions[0].fps), frames, side, float(side_threshold), True)
+                   float(motions[0].fps), frames, side, float(side_threshold), True, reference)
 
     def _kinds(self) -> np.ndarray:
         """(C[+1],) 0 for rotation channels, 1 for root horizontal, 2 for other positions,
@@ -408,12 +421,17 @@ class PoseCodec:
                 origin (heading 0) and a "partner" root around a fixed midpoint of zero.
             skeleton: skeleton whose offsets to use (defaults to the codec's).
             fps: frame rate of the result (also converts velocities back to positions);
-                default: the rate the codec was fitted at, so ``decode(*encode(m))`` is ``m``
-                for a motion at that rate (to float precision in its joint positions when the
-                codec has rest frames or a canonical side).
+                default: the rate the codec was fitted at, so with ``e = encode(m)``,
+                ``decode(e.Y, e.anchor, mirrored=e.mirrored)`` is ``m`` for a motion at that
+                rate (to float precision in its joint positions when the codec has rest frames
+                or a canonical side; the angles then come back on the Euler branch nearest the
+                training clips').
             mirrored: mirror the result back (``Encoded.mirrored``); needs a canonical side.
         """
         sk = self.skeleton if skeleton is None else skeleton
+        if not isinstance(sk, Skeleton):
+            raise BayesmotionError(f"skeleton must be a Skeleton or None, got "
+                                   f"{type(sk).__name__} (pass mirrored= by name)")
         check_layout(self.skeleton, sk)
         return self.from_rig(self.decode_rig(Y, anchor, sk, fps, name, mirrored), sk, mirrored)
 
@@ -436,7 +454,7 @@ class PoseCodec:
 
         sk = self.skeleton if skeleton is None else skeleton
         if self.frames is not None:
-            motion = reframe(motion, np.swapaxes(self.frames, -1, -2))
+            motion = reframe(motion, np.swapaxes(self.frames, -1, -2), self.angle_reference)
             motion = motion.replace(skeleton=sk if not mirrored else motion.skeleton)
         if mirrored:
             self._check_side()
@@ -452,21 +470,31 @@ class PoseCodec:
         """Channel variances (T, C) of a :meth:`decode_rig` motion, carried to the original rig
         (:meth:`from_rig`, not mirrored) to first order: the rotation channels of a joint whose
         frame turned get ``sum_i J_ki^2 var_i`` with ``J`` the Jacobian of its original Euler
-        angles in its rig angles (cross-covariances dropped). Other channels are unchanged."""
+        angles in its rig angles, its position channels ``sum_i B_p[k, i]^2 var_i`` (the
+        translation turns with its parent's frame ``B_p``; cross-covariances dropped, and a
+        missing position channel counts as variance 0). Other channels are unchanged."""
         var = np.array(var, dtype=np.float64)
         if self.frames is None:
             return var
         sk = motion.skeleton
         rot_idx, orders = sk.rotation_layout()
+        pos_idx = sk.position_layout()
         eye = np.eye(3)
+        out = var.copy()
         for j, p in enumerate(sk.parents):
             Bp = eye if p < 0 else self.frames[p]
-            if len(orders[j]) != 3 or (np.allclose(Bp, eye) and np.allclose(self.frames[j], eye)):
+            if np.allclose(Bp, eye) and np.allclose(self.frames[j], eye):
                 continue
-            cols = rot_idx[j, :3]
-            J = _euler_jacobian(orders[j], motion.values[:, cols], Bp, self.frames[j])
-            var[:, cols] = np.einsum("tki,ti->tk", J ** 2, var[:, cols])
-        return var
+            if len(orders[j]) == 3:
+                cols = rot_idx[j, :3]
+                J = _euler_jacobian(orders[j], motion.values[:, cols], Bp, self.frames[j])
+                out[:, cols] = np.einsum("tki,ti->tk", J ** 2, var[:, cols])
+            has = pos_idx[j] >= 0
+            if has.any() and not np.allclose(Bp, eye):  # translations turn with the parent
+                full = np.zeros((var.shape[0], 3))
+                full[:, has] = var[:, pos_idx[j][has]]
+                out[:, pos_idx[j][has]] = (full @ (Bp ** 2).T)[:, has]
+        return out
 
     def decode_rig(self, Y, anchor=None, skeleton: Skeleton | None = None,
                    fps: float | None = None, name: str = "", mirrored: bool = False) -> Motion:
@@ -508,6 +536,8 @@ class PoseCodec:
             out[f"{prefix}branch"] = self.branch
         if self.frames is not None:
             out[f"{prefix}frames"] = self.frames
+            if self.angle_reference is not None:
+                out[f"{prefix}angle_reference"] = self.angle_reference
         if self.side is not None:
             out.update({f"{prefix}side_{k}": np.asarray(v)
                         for k, v in self.side._asdict().items()})
@@ -521,6 +551,42 @@ class PoseCodec:
 
     @classmethod
     def from_saved(cls, meta: dict, arrays, prefix: str) -> PoseCodec:
+        """The codec written by :meth:`to_arrays`/:meth:`to_meta`. Raises ValueError when the
+        rest frames or the mirror plan do not fit the skeleton."""
+        codec = cls._from_saved(meta, arrays, prefix)
+        codec._check_rig(prefix)
+        return codec
+
+    def _check_rig(self, prefix: str) -> None:
+        J, C = self.skeleton.n_joints, self.skeleton.n_channels
+
+        def bad(msg):  # bayesmotion.io.load names the file and raises ModelFileError
+            raise ValueError(f"{prefix.rstrip('/')}: {msg}")
+
+        if self.frames is not None:
+            F = self.frames
+            if F.shape != (J, 3, 3) or not np.all(np.isfinite(F)):
+                bad(f"rest frames must be finite ({J}, 3, 3), got {F.shape}")
+            if not (np.allclose(F @ np.swapaxes(F, -1, -2), np.eye(3), atol=1e-9)
+                    and np.allclose(np.linalg.det(F), 1.0, atol=1e-9)):
+                bad("rest frames are not rotations")
+            ref = self.angle_reference
+            if ref is not None and (ref.shape != (C,) or not np.all(np.isfinite(ref))):
+                bad(f"angle reference must be finite ({C},), got {ref.shape}")
+        if self.side is not None:
+            perm, M, A, left = self.side
+            shapes = {"perm": (perm.shape, (J,)), "reflection": (M.shape, (3, 3)),
+                      "frames": (A.shape, (J, 3, 3)), "left": (left.shape, (J,))}
+            for name, (got, want) in shapes.items():
+                if got != want:
+                    bad(f"mirror plan {name} must have shape {want}, got {got}")
+            if sorted(perm.tolist()) != list(range(J)) or not np.all(perm[perm] == np.arange(J)):
+                bad("mirror plan partners are not a pairing of the joints")
+            if not (np.all(np.isfinite(M)) and np.all(np.isfinite(A))):
+                bad("mirror plan has non-finite values")
+
+    @classmethod
+    def _from_saved(cls, meta: dict, arrays, prefix: str) -> PoseCodec:
         side = None
         if f"{prefix}side_perm" in arrays:
             from .mirror import MirrorPlan
@@ -538,7 +604,9 @@ class PoseCodec:
                    else None, None if meta.get("fps") is None else float(meta["fps"]),
                    np.asarray(arrays[f"{prefix}frames"], dtype=float)
                    if f"{prefix}frames" in arrays else None, side,
-                   float(meta.get("side_threshold", 0.15)), bool(meta.get("fold_root", False)))
+                   float(meta.get("side_threshold", 0.15)), bool(meta.get("fold_root", False)),
+                   np.asarray(arrays[f"{prefix}angle_reference"], dtype=float)
+                   if f"{prefix}angle_reference" in arrays else None)
 
 
 def fold_ancestor_translation(motion: Motion, mover: int) -> Motion:
