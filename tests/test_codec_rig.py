@@ -120,6 +120,7 @@ def test_canonical_side_and_frames_are_rejected_where_they_cannot_work(tmp_path)
         PoseCodec.fit([m], root_mode="heading", canonical_side=True)
 
 
+@pytest.mark.slow
 def test_corrupt_rig_arrays_in_a_model_file_are_refused(tmp_path):
     import zipfile
 
@@ -173,6 +174,7 @@ def test_channel_variance_matches_monte_carlo_through_the_frames():
     assert np.abs(predicted[:, cols] - 4.0).max() > 0.5
 
 
+@pytest.mark.slow
 def test_model_stores_the_rig_steps_and_new_clips_go_through_them(tmp_path):
     _, clips = _walks()
     data = MotionDataset(tuple(Trial((m,), {"emotion": e}, f"t{i}") for i, (m, e) in
@@ -255,6 +257,7 @@ def test_bandai_walks_encode_without_outlier_channels(bandai_root):
     assert not any(n.startswith("joint_Root:") for n in codec.channel_names)
 
 
+@pytest.mark.slow
 def test_cli_fit_stores_the_rig_steps(tmp_path):
     from bayesmotion.cli import main
     from bayesmotion.data import write_bvh
