@@ -243,10 +243,10 @@ class PoseCodec:
             check_layout(sk, m.skeleton)
         mover = find_mover(motions)
         motions = [fold_ancestor_translation(m, mover) for m in motions]
+        from . import mirror as mr
+
         side, frames = None, None
         if canonical_side:
-            from . import mirror as mr
-
             if root_mode == "partner":
                 raise BayesmotionError("canonical_side mirrors one actor alone; it cannot be "
                                        "used with root_mode='partner' (two-actor trials)")
@@ -262,13 +262,10 @@ class PoseCodec:
             motions, _ = mr.canonical_side(motions, side_threshold, side)
         reference = None
         if rest_frames:
-            from . import mirror as mr
-
             frames = mr.rest_frames(motions)
             rad = np.deg2rad(np.concatenate([m.values for m in motions]))
             reference = np.rad2deg(np.arctan2(np.sin(rad).mean(0), np.cos(rad).mean(0)))
             motions = [mr.reframe(m, frames) for m in motions]
-        mover = find_mover(motions)
         axis = -1
         if root_mode == "heading":
             axis = _heading_axis(motions, mover)
