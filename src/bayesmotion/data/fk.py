@@ -356,3 +356,21 @@ def forward_kinematics_with_variance(skeleton: Skeleton, values, var):
     pad = ((0, _bucket(n) - n), (0, 0))
     p, v = f(np.pad(values, pad), np.pad(var, pad), skeleton.offsets)
     return np.asarray(p)[:n], np.asarray(v)[:n]
+
+
+def other_euler_solution(angles: np.ndarray, order: str) -> np.ndarray:
+    """(..., 3) Euler angles (degrees) of the same rotations on the other branch: for
+    Tait-Bryan orders (three different axes) ``(a + 180, 180 - b, c + 180)``; proper Euler orders
+    (a repeated axis) are returned as they are."""
+    angles = np.asarray(angles, dtype=np.float64)
+    if len(set(order)) != 3:
+        return angles
+    out = angles + np.array([180.0, 0.0, 180.0])
+    out[..., 1] = 180.0 - angles[..., 1]
+    return out
+
+
+def circular_mean_deg(values: np.ndarray, axis: int = 0) -> np.ndarray:
+    """Circular mean of angles in degrees along ``axis``, in (-180, 180]."""
+    rad = np.deg2rad(values)
+    return np.rad2deg(np.arctan2(np.sin(rad).mean(axis), np.cos(rad).mean(axis)))

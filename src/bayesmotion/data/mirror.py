@@ -38,7 +38,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import BayesmotionError
-from .fk import euler_matrices
+from .fk import euler_matrices, other_euler_solution
 from .motion import Motion
 from .representation import find_mover
 from .skeleton import Skeleton
@@ -212,11 +212,7 @@ def _euler_nearest(R: np.ndarray, order: str, reference: np.ndarray) -> np.ndarr
     with warnings.catch_warnings():  # at gimbal lock scipy warns; the rotation is still exact
         warnings.filterwarnings("ignore", "Gimbal lock", UserWarning)
         a = Rotation.from_matrix(R).as_euler(order.upper(), degrees=True)
-    if len(set(order)) == 3:  # Tait-Bryan: the second solution of the same rotation
-        b = a + np.array([180.0, 0.0, 180.0])
-        b[:, 1] = 180.0 - a[:, 1]
-    else:
-        b = a
+    b = other_euler_solution(a, order)  # Tait-Bryan: the second solution of the same rotation
     out = np.empty_like(a)
 
     def wrap_to(x, ref):

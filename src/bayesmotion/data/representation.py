@@ -55,7 +55,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import BayesmotionError, SkeletonMismatchError
-from .fk import _np_axis_rotation, euler_matrices
+from .fk import _np_axis_rotation, circular_mean_deg, euler_matrices, other_euler_solution
 from .motion import Motion
 from .skeleton import ROTATION_CHANNELS, Skeleton
 
@@ -263,8 +263,7 @@ class PoseCodec:
         reference = None
         if rest_frames:
             frames = mr.rest_frames(motions)
-            rad = np.deg2rad(np.concatenate([m.values for m in motions]))
-            reference = np.rad2deg(np.arctan2(np.sin(rad).mean(0), np.cos(rad).mean(0)))
+            reference = circular_mean_deg(np.concatenate([m.values for m in motions]))
             motions = [mr.reframe(m, frames) for m in motions]
         axis = -1
         if root_mode == "heading":
@@ -275,9 +274,8 @@ class PoseCodec:
         parts = [proto._untangled(m, None if partners is None else partners[i])[0]
                  for i, m in enumerate(motions)]
         rot = proto._kinds() == 0
-        rad = np.deg2rad(np.concatenate(parts)[:, rot])
         branch = np.full(width, np.nan)
-        branch[rot] = np.rad2deg(np.arctan2(np.sin(rad).mean(0), np.cos(rad).mean(0)))
+        branch[rot] = circular_mean_deg(np.concatenate(parts)[:, rot])
         proto = replace(proto, branch=branch)
         raw = np.concatenate([proto._on_branch(v) for v in parts])
         rng = raw.max(0) - raw.min(0)
@@ -653,11 +651,7 @@ def _euler_jacobian(order: str, angles: np.ndarray, Bp: np.ndarray, Bj: np.ndarr
         return Rotation.from_matrix(R).as_euler(order.upper(), degrees=True)
 
     def near(e, base):
-        if len(set(order)) != 3:
-            return wrap(e - base)
-        alt = e + np.array([180.0, 0.0, 180.0])
-        alt[:, 1] = 180.0 - e[:, 1]
-        d1, d2 = wrap(e - base), wrap(alt - base)
+        d1, d2 = wrap(e - base), wrap(other_euler_solution(e, order) - base)
         pick = np.sum(d1 ** 2, 1) <= np.sum(d2 ** 2, 1)
         return np.where(pick[:, None], d1, d2)
 
