@@ -4,6 +4,7 @@ joint angles away from gimbal lock without moving a joint."""
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 import bayesmotion as bm
 from bayesmotion.data import Motion, Skeleton
@@ -11,6 +12,7 @@ from bayesmotion.data.bandai import load_bandai
 from bayesmotion.data.fk import euler_matrices
 from bayesmotion.data.mirror import (
     _euler_nearest,
+    _euler_tracks,
     _world_and_local,
     canonical_side,
     lateral_ratio,
@@ -224,6 +226,36 @@ def test_euler_angles_follow_the_reference_branch_and_stay_continuous():
         assert np.abs(np.diff(out, axis=0)).max() < 20  # no branch or turn jumps
         np.testing.assert_allclose(out[0], ref[0], atol=1e-6)  # on the reference's branch
 
+
+
+def _euler_nearest_one_by_one(R, order, reference):
+    """The per-frame, per-joint reference for _euler_tracks (the loop it replaced)."""
+    a = Rotation.from_matrix(R).as_euler(order.upper(), degrees=True)
+    b = a + [180.0, 0.0, 180.0]
+    b[:, 1] = 180.0 - a[:, 1]
+    out, prev = np.empty_like(a), reference[0]
+    for k in range(len(a)):
+        ca = prev + (a[k] - prev + 180.0) % 360.0 - 180.0
+        cb = prev + (b[k] - prev + 180.0) % 360.0 - 180.0
+        prev = out[k] = ca if np.sum((ca - prev) ** 2) <= np.sum((cb - prev) ** 2) else cb
+    return out + 360.0 * np.round((reference.mean(0) - out.mean(0)) / 360.0)
+
+
+def test_euler_tracks_of_many_joints_equal_each_joints_own_track():
+    rng = np.random.default_rng(4)
+    T, orders = 150, ["ZXY", "XYZ", "YZX", "ZXY"]
+    t = np.linspace(0, 1, T)[:, None]
+    # smooth tracks, one through gimbal lock, references on both branches and other turns
+    angles = rng.uniform(-150, 150, (len(orders), 1, 3)) + 80 * np.sin(5 * t + rng.uniform(
+        0, 6, (len(orders), 1, 3)))
+    angles[0, :, 1] = np.linspace(60, 120, T)
+    R = np.stack([euler_matrices(o, a) for o, a in zip(orders, angles, strict=True)], 1)
+    ref = rng.uniform(-400, 400, (T, len(orders), 3))
+    got = _euler_tracks(R, orders, ref)
+    for i, o in enumerate(orders):
+        np.testing.assert_array_equal(got[:, i], _euler_nearest_one_by_one(R[:, i], o,
+                                                                           ref[:, i]))
+        np.testing.assert_allclose(euler_matrices(o, got[:, i]), R[:, i], atol=1e-9)
 
 def test_names_of_other_exporters_pair_and_unmarked_names_are_refused():
     def chain(names):

@@ -209,21 +209,30 @@ def mirror_plan(skeleton: Skeleton, motions: Iterable[Motion] = (), *, axis: int
 def _euler_nearest(R: np.ndarray, order: str, reference: np.ndarray) -> np.ndarray:
     """(T, 3) Euler angles (degrees) of rotations R (T, 3, 3) in ``order``, continuous in time,
     on the branch and turn nearest to ``reference`` (T, 3) at the first frame."""
+    return _euler_tracks(R[:, None], [order], reference[:, None])[:, 0]
+
+
+def _euler_tracks(R: np.ndarray, orders: Sequence[str], reference: np.ndarray) -> np.ndarray:
+    """:func:`_euler_nearest` of ``n`` joints at once: R (T, n, 3, 3), one Euler order per
+    joint, reference (T, n, 3) -> (T, n, 3). The branch choice runs once per frame over every
+    joint (one Python step per frame, not per frame and joint); each joint's track is the one
+    :func:`_euler_nearest` gives it alone."""
+    T, n = R.shape[:2]
+    a = np.empty((T, n, 3))
     with warnings.catch_warnings():  # at gimbal lock scipy warns; the rotation is still exact
         warnings.filterwarnings("ignore", "Gimbal lock", UserWarning)
-        a = Rotation.from_matrix(R).as_euler(order.upper(), degrees=True)
-    b = other_euler_solution(a, order)  # Tait-Bryan: the second solution of the same rotation
+        for i, order in enumerate(orders):
+            a[:, i] = Rotation.from_matrix(R[:, i]).as_euler(order.upper(), degrees=True)
+    # Tait-Bryan: the second solution of the same rotation
+    b = np.stack([other_euler_solution(a[:, i], o) for i, o in enumerate(orders)], axis=1)
     out = np.empty_like(a)
-
-    def wrap_to(x, ref):
-        return ref + (x - ref + 180.0) % 360.0 - 180.0
-
     prev = reference[0]
-    for k in range(a.shape[0]):
-        ca, cb = wrap_to(a[k], prev), wrap_to(b[k], prev)
-        out[k] = ca if np.sum((ca - prev) ** 2) <= np.sum((cb - prev) ** 2) else cb
-        prev = out[k]
-    # the whole track by the turn that brings its mean nearest the reference's
+    for k in range(T):
+        ca = prev + (a[k] - prev + 180.0) % 360.0 - 180.0  # each solution on the turn nearest
+        cb = prev + (b[k] - prev + 180.0) % 360.0 - 180.0  # the previous frame's angles
+        nearer_a = np.sum((ca - prev) ** 2, -1) <= np.sum((cb - prev) ** 2, -1)
+        prev = out[k] = np.where(nearer_a[:, None], ca, cb)
+    # each whole track by the turn that brings its mean nearest the reference's
     shift = 360.0 * np.round((reference.mean(0) - out.mean(0)) / 360.0)
     return out + shift
 
@@ -315,6 +324,7 @@ def _reframe(motion: Motion, perm: np.ndarray, M: np.ndarray, A: np.ndarray,
     rot_idx, orders = sk.rotation_layout()
     pos_idx = sk.position_layout()
     out = motion.values.copy()
+    tracks = []  # (rotations, order, reference, columns) of the joints whose angles change
     for j, p in enumerate(sk.parents):
         Ap = np.eye(3) if p < 0 else A[p]
         s = perm[j]
@@ -334,11 +344,16 @@ def _reframe(motion: Motion, perm: np.ndarray, M: np.ndarray, A: np.ndarray,
                 ref = np.broadcast_to(reference[cols], (len(Lm), 3))
             else:
                 ref = np.zeros((len(Lm), 3))
-            out[:, cols] = _euler_nearest(Lm, orders[j], ref)
+            tracks.append((Lm, orders[j], ref, cols))
         tm = t[:, s] @ (Ap.T @ M).T
         for a in range(3):
             if pos_idx[j, a] >= 0:
                 out[:, pos_idx[j, a]] = tm[:, a]
+    if tracks:
+        Ls, ords, refs, cols = zip(*tracks, strict=True)
+        angles = _euler_tracks(np.stack(Ls, 1), ords, np.stack(refs, 1))
+        for i, c in enumerate(cols):
+            out[:, c] = angles[:, i]
     return motion.replace(skeleton=_moved_skeleton(sk, perm, M, A), values=out)
 
 
