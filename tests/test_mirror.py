@@ -11,7 +11,6 @@ from bayesmotion.data import Motion, Skeleton
 from bayesmotion.data.bandai import load_bandai
 from bayesmotion.data.fk import euler_matrices
 from bayesmotion.data.mirror import (
-    _euler_nearest,
     _euler_tracks,
     _world_and_local,
     canonical_side,
@@ -221,7 +220,7 @@ def test_euler_angles_follow_the_reference_branch_and_stay_continuous():
     second[:, 1] = 180.0 - first[:, 1]
     np.testing.assert_allclose(euler_matrices("ZXY", second), R, atol=1e-12)  # same rotations
     for ref in (first, second + 360.0):
-        out = _euler_nearest(R, "ZXY", ref)
+        out = _euler_tracks(R[:, None], ["ZXY"], ref[:, None])[:, 0]
         np.testing.assert_allclose(euler_matrices("ZXY", out), R, atol=1e-9)
         assert np.abs(np.diff(out, axis=0)).max() < 20  # no branch or turn jumps
         np.testing.assert_allclose(out[0], ref[0], atol=1e-6)  # on the reference's branch
@@ -229,7 +228,7 @@ def test_euler_angles_follow_the_reference_branch_and_stay_continuous():
 
 
 def _euler_nearest_one_by_one(R, order, reference):
-    """The per-frame, per-joint reference for _euler_tracks (the loop it replaced)."""
+    """The per-frame, per-joint loop _euler_tracks replaced: its reference."""
     a = Rotation.from_matrix(R).as_euler(order.upper(), degrees=True)
     b = a + [180.0, 0.0, 180.0]
     b[:, 1] = 180.0 - a[:, 1]

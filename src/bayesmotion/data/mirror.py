@@ -206,17 +206,11 @@ def mirror_plan(skeleton: Skeleton, motions: Iterable[Motion] = (), *, axis: int
     return MirrorPlan(perm, M, frames, left)
 
 
-def _euler_nearest(R: np.ndarray, order: str, reference: np.ndarray) -> np.ndarray:
-    """(T, 3) Euler angles (degrees) of rotations R (T, 3, 3) in ``order``, continuous in time,
-    on the branch and turn nearest to ``reference`` (T, 3) at the first frame."""
-    return _euler_tracks(R[:, None], [order], reference[:, None])[:, 0]
-
-
 def _euler_tracks(R: np.ndarray, orders: Sequence[str], reference: np.ndarray) -> np.ndarray:
-    """:func:`_euler_nearest` of ``n`` joints at once: R (T, n, 3, 3), one Euler order per
-    joint, reference (T, n, 3) -> (T, n, 3). The branch choice runs once per frame over every
-    joint (one Python step per frame, not per frame and joint); each joint's track is the one
-    :func:`_euler_nearest` gives it alone."""
+    """(T, n, 3) Euler angles (degrees) of ``n`` joints' rotations R (T, n, 3, 3), one Euler
+    order per joint, each joint's track continuous in time and on the branch and turn nearest to
+    its ``reference`` (T, n, 3) at the first frame. The branch choice runs once per frame over
+    every joint (one Python step per frame, not per frame and joint); joints never interact."""
     T, n = R.shape[:2]
     a = np.empty((T, n, 3))
     with warnings.catch_warnings():  # at gimbal lock scipy warns; the rotation is still exact
