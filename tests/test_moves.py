@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax.flatten_util import ravel_pytree
 
 import bayesmotion as bm
 from bayesmotion.moves import (
@@ -24,6 +25,8 @@ from bayesmotion.posterior import (
     Target,
     _default_moves,
     _independence_block,
+    _run_emcee,
+    idle_factor_modes,
     sample_posterior,
 )
 
@@ -304,6 +307,48 @@ def test_independence_move_in_emcee_mixes_a_correlated_block_in_a_few_steps():
                                         0.05)
 
 
+
+def _two_modes(x):
+    """0.7 N(-3, 0.5^2) + 0.3 N(2, 0.8^2) in x[0], N(0, 1) in x[1], logistic in x[2]."""
+    a = jnp.log(0.7) - 0.5 * ((x[0] + 3) / 0.5) ** 2 - jnp.log(0.5)
+    b = jnp.log(0.3) - 0.5 * ((x[0] - 2) / 0.8) ** 2 - jnp.log(0.8)
+    return jnp.logaddexp(a, b) - 0.5 * x[1] ** 2 - x[2] - 2 * jnp.log1p(jnp.exp(-x[2]))
+
+
+def test_mixture_proposal_moves_walkers_between_modes_and_keeps_the_target():
+    # every walker starts in the left mode; a mixture with one (misplaced, too wide) component
+    # per mode brings 30% of them to the right mode, with the right moments; one component at
+    # the left mode leaves nearly all of them there
+    rng = np.random.default_rng(5)
+    n = 4000
+    x0 = np.c_[rng.normal(-3, 0.5, n), rng.normal(size=n), rng.logistic(size=n)]
+    lp0 = np.asarray(jax.vmap(_two_modes)(jnp.asarray(x0)))
+    mix = IndependenceMove([0, 1], [[-2.8, 0.2], [2.3, -0.1]],
+                           [np.diag([0.5, 1.5]), np.diag([1.0, 1.2])], df=10.0,
+                           weights=[0.5, 0.5])
+    one = IndependenceMove([0, 1], [-2.8, 0.2], np.diag([0.5, 1.5]), df=10.0)
+    out = {}
+    for name, move in (("mix", mix), ("one", one)):
+        state, model = emcee.State(x0.copy(), log_prob=lp0.copy()), _LPModel(6, _two_modes)
+        for _ in range(25):
+            state, _ = move.propose(model, state)
+        out[name] = state.coords
+        np.testing.assert_allclose(state.log_prob, np.asarray(jax.vmap(_two_modes)(
+            jnp.asarray(state.coords))), rtol=1e-12, atol=1e-9)
+    right = out["mix"][:, 0] > 0
+    assert abs(right.mean() - 0.3) < 4 * np.sqrt(0.3 * 0.7 / n)
+    x = out["mix"]
+    assert abs(x[right, 0].mean() - 2) < 4 * 0.8 / np.sqrt(right.sum())
+    assert abs(x[~right, 0].mean() + 3) < 4 * 0.5 / np.sqrt((~right).sum())
+    assert abs(x[:, 1].std() - 1) < 0.05
+    np.testing.assert_array_equal(x[:, 2], x0[:, 2])
+    assert np.mean(out["one"][:, 0] > 0) < 0.05  # its t tails reach the right mode rarely
+    assert 0.3 < mix.acceptance < 0.9
+    with pytest.raises(ValueError, match=r"cov must have shape \(2, 2, 2\)"):
+        IndependenceMove([0, 1], np.zeros((2, 2)), np.eye(2))
+    with pytest.raises(ValueError, match="weights must be 2 positive"):
+        IndependenceMove([0, 1], np.zeros((2, 2)), np.stack([np.eye(2)] * 2), weights=[1, 0])
+
 def test_independence_move_rejects_non_finite_proposals_and_validates_arguments():
     move = IndependenceMove([0, 1, 2], _MEAN, _COV)
     state = _walled_state()
@@ -320,3 +365,70 @@ def test_independence_move_rejects_non_finite_proposals_and_validates_arguments(
     with pytest.raises(ValueError, match="df"):
         IndependenceMove([0], [0.0], np.eye(1), df=0.0)
 
+
+
+class _TwoModeTarget:
+    """A stand-in for posterior.Target over (log_beta, a two-level 'couple' style) with a known
+    answer: 0.75 N(m1, 0.2^2 I) + 0.25 N(m2, 0.2^2 I); m2 has the couple vectors near the
+    simplex's centre (unconstrained 0), as the demo-size posterior's second mode."""
+
+    M1, M2, SD = np.array([0.0, 1.2, -1.2]), np.array([0.5, 0.1, -0.2]), 0.2
+
+    def __init__(self):
+        tree = {"log_beta": jnp.zeros(1), "style:couple": jnp.zeros((2, 1))}
+        x0, self.unravel = ravel_pytree(tree)
+        self.x0 = np.asarray(x0)
+        self.ndim = 3
+        self.names = ["log_beta[0]", "style:couple[0, 0]", "style:couple[1, 0]"]
+
+        def logp(x):
+            a = jnp.log(0.75) - 0.5 * jnp.sum(((x - self.M1) / self.SD) ** 2)
+            b = jnp.log(0.25) - 0.5 * jnp.sum(((x - self.M2) / self.SD) ** 2)
+            return jnp.logaddexp(a, b)
+
+        self._logp = logp
+        self.logp = jax.jit(logp)
+        self.logp_batch = jax.jit(jax.vmap(logp))
+        conc = {"couple": np.array([[11.0, 1.0], [1.0, 11.0]])}
+        self.model = type("M", (), {"log_posterior_fn": type("F", (), {
+            "style_prior": type("P", (), {"concentration": conc})})})
+        self.searches = []
+
+    def laplace(self, centre):
+        return np.linalg.inv(-np.asarray(jax.hessian(self._logp)(jnp.asarray(centre))))
+
+    def conditional_map(self, max_iter=500, progress=False, start=None):
+        from scipy.optimize import minimize
+
+        self.searches.append(np.array(start))
+        vg = jax.jit(jax.value_and_grad(lambda x: -self._logp(x)))
+        r = minimize(lambda x: [np.asarray(v, dtype=float) for v in vg(jnp.asarray(x))],
+                     self.x0 if start is None else start, jac=True, method="L-BFGS-B")
+        return r.x, {"converged": bool(r.success)}
+
+
+def test_independence_move_finds_the_idle_factor_mode_and_samples_both_modes():
+    target = _TwoModeTarget()
+    centre = target.conditional_map(start=target.M1 + 0.1)[0]
+    modes = idle_factor_modes(target, centre, target.laplace(centre), np.arange(3))
+    # the search started from the main mode with the couple vectors at the simplex's centre
+    np.testing.assert_allclose(target.searches[-1], [centre[0], 0.0, 0.0], atol=1e-12)
+    assert [m["searched_from"] for m in modes] == [None, "couple"]
+    np.testing.assert_allclose(modes[1]["x"], target.M2, atol=1e-4)
+    # Laplace evidence is exact for Gaussian modes: weights 0.75 / 0.25
+    np.testing.assert_allclose([m["weight"] for m in modes], [0.75, 0.25], atol=1e-3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        post = _run_emcee(target, centre, 32, 400, 100, 1, 0, None, False, "ball", 1e-2,
+                          None, independence=True)
+    x = post.chains.reshape(-1, 3)
+    second = x[:, 1] < 0.65
+    # 9,600 kept draws, walkers started at the main mode: each mode holds its share
+    assert abs(second.mean() - 0.25) < 0.04
+    np.testing.assert_allclose(x[~second].mean(0), target.M1, atol=0.03)
+    np.testing.assert_allclose(x[second].mean(0), target.M2, atol=0.05)
+    assert post.info["independence_acceptance"] > 0.5
+    assert [round(m["weight"], 2) for m in post.info["modes"]] == [0.75, 0.25]
+    # a factor whose coordinates the independence move does not draw is not searched
+    one = idle_factor_modes(target, centre, target.laplace(centre), np.array([0]))
+    assert len(one) == 1  # the couple coordinates are not in that block: no search

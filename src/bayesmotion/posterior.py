@@ -125,9 +125,11 @@ class Target:
         return {**{k: np.asarray(v) for k, v in self.fixed.items()},
                 **{k: np.asarray(v) for k, v in self.unravel(jnp.asarray(x)).items()}}
 
-    def conditional_map(self, max_iter=500, progress=False):
-        """Maximise the sampled density with the latents fixed (the walkers' centre)."""
-        start = {k: np.asarray(v) for k, v in self.unravel(jnp.asarray(self.x0)).items()}
+    def conditional_map(self, max_iter=500, progress=False, start=None):
+        """Maximise the sampled density with the latents fixed (the walkers' centre), from
+        ``start`` (flat; default ``x0``)."""
+        x = self.x0 if start is None else np.asarray(start, dtype=np.float64)
+        start = {k: np.asarray(v) for k, v in self.unravel(jnp.asarray(x)).items()}
         params, diag = map_optimize(lambda p, j: self.model.log_posterior_fn(
             {**self.fixed, **p}, j), start, max_iter=max_iter, progress=progress,
             desc="conditional MAP", value_and_grad=self._neg_vg)
@@ -381,7 +383,13 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             54 walkers, ``benchmarks/posterior_convergence.py``) 28% of the second phase's proposals
             were accepted, and 1,000 steps (743 s) gave max R-hat 1.067 and min bulk ESS 527, where
             DE and the rotations alone needed 7,000 steps (3,211 s) for 1.12 and 298; R-hat stayed
-            at 1.07-1.09 up to 2,000 steps (walkers stuck on the couple style).
+            at 1.07-1.09 up to 2,000 steps (walkers stuck on the couple style). Where a
+            two-level style factor has a second local mode (its vectors near the simplex's
+            centre, the factor idle; :func:`idle_factor_modes` searches for one per factor, at
+            the cost of one more conditional MAP and Laplace approximation), the proposal is a
+            mixture with one t per mode (weights from their Laplace evidence, each at least
+            0.05; in the second phase each mode's moments come from the adaptation's states
+            nearest it), so a walker jumps between the modes in one accepted step.
 
     Returns:
         a Posterior. A ``ChainTooShortWarning`` is issued when the chain is shorter than 50
@@ -475,9 +483,87 @@ def _independence_block(target, cov) -> np.ndarray:
                     dtype=int)
 
 
+def idle_factor_modes(target, centre, cov, block) -> list[dict]:
+    """Local modes of the sampled density beside the conditional MAP ``centre``: one search
+    per style factor whose coordinates the independence move draws (those the rotations do not
+    move: two-level factors), started from ``centre`` with that factor's style vectors at the
+    simplex's centre, where the factor is idle and the output scales can take up its job.
+
+    At the demo size the couple factor has such a mode 1.4 nats below the main one (Laplace
+    evidence 1.2 nats lower, i.e. about a quarter of the mass), 4 posterior sd away in each
+    couple coordinate, and DE walkers cross between the two in thousands of steps (session 21).
+
+    Returns one dict per mode, the main one first: ``x`` (flat), ``cov`` (Laplace), ``logp``,
+    ``log_evidence`` (logp + log det(cov) / 2) and ``weight`` (normalised evidence); a search
+    that ends within 3 Laplace sd of a mode already found, or more than 20 nats of evidence below
+    the main mode, adds nothing."""
+    def evidence(lp, c):
+        return lp + 0.5 * np.linalg.slogdet(c)[1]
+
+    def logp(x):
+        return float(np.asarray(target.logp_batch(jnp.asarray(x)[None]))[0])
+
+    lp0 = logp(centre)
+    modes = [{"x": centre, "cov": cov, "logp": lp0, "log_evidence": evidence(lp0, cov),
+              "searched_from": None}]
+    if not hasattr(target, "unravel"):
+        return _weighted(modes)
+    inside = set(np.asarray(block).tolist())
+    for factor, idx in style_slices(target.unravel, target.x0).items():
+        if not set(idx.tolist()) <= inside:
+            continue
+        K = int(round((1 + np.sqrt(1 + 4 * idx.size)) / 2))  # idx holds K (K - 1) entries
+        start = np.array(centre, dtype=np.float64)
+        start[idx] = np.asarray(simplex_to_style(np.full((K, K), 1.0 / K))).ravel()
+        x, diag = target.conditional_map(start=start)
+        if not diag.get("converged", True):
+            continue
+        lp = logp(x)
+        c = target.laplace(x)
+        ev = evidence(lp, c)
+        b = np.asarray(block)
+        far = all(np.sqrt(np.sum(np.linalg.solve(np.linalg.cholesky(m["cov"][np.ix_(b, b)]),
+                                                 x[b] - m["x"][b]) ** 2)) > 3.0
+                  for m in modes)
+        if far and np.isfinite(ev) and ev > modes[0]["log_evidence"] - 20.0:
+            modes.append({"x": x, "cov": c, "logp": lp, "log_evidence": ev,
+                          "searched_from": factor})
+    return _weighted(modes)
+
+
+def _weighted(modes):
+    ev = np.array([m["log_evidence"] for m in modes])
+    w = np.exp(ev - ev.max())
+    for m, wi in zip(modes, w / w.sum(), strict=True):
+        m["weight"] = float(wi)
+    return modes
+
+
+def _mixture_proposal(block, modes, z=None):
+    """(block, means, covs, weights) of the independence move: each mode's Laplace
+    approximation; with ``z`` (adaptation states, block coordinates), each mode's sample
+    moments over the states nearest it (Mahalanobis under its Laplace), where it has at least
+    2 (d + 1) of them. Weights: the modes' Laplace evidence, at least 0.05 each."""
+    means = np.array([m["x"][block] for m in modes])
+    covs = np.array([m["cov"][np.ix_(block, block)] for m in modes])
+    if z is not None:
+        d2 = np.array([np.sum(np.linalg.solve(np.linalg.cholesky(c), (z - mu).T) ** 2, 0)
+                       for mu, c in zip(means, covs, strict=True)])
+        near = d2.argmin(0)
+        for i in range(len(modes)):
+            zi = z[near == i]
+            if len(zi) >= 2 * (block.size + 1):
+                means[i], covs[i] = zi.mean(0), _pooled_cov(zi)
+    w = np.maximum([m["weight"] for m in modes], 0.05)
+    if len(modes) == 1:
+        return block, means[0], covs[0], None
+    return block, means, covs, w / w.sum()
+
+
 def _default_moves(target, hmc: bool = False, proposal=None):
     """DE, each step followed by the style rotations when the target samples style vectors;
-    then, with ``proposal = (block, mean, cov)``, an independence step on that block
+    then, with ``proposal = (block, mean, cov[, weights])`` (a mixture when ``mean`` is 2-d),
+    an independence step on that block
     (:class:`bayesmotion.moves.IndependenceMove`); then
     (``hmc``) ensemble-preconditioned HMC steps (:class:`bayesmotion.moves.EnsembleHMC`): one
     on the coordinates the rotations do not move, one on those they do.
@@ -498,8 +584,8 @@ def _default_moves(target, hmc: bool = False, proposal=None):
     if proposal is not None:
         # the hyperparameters are nearly Gaussian, strongly correlated (DE crawls there: tau
         # ~300 steps at the demo size): an accepted independence proposal is a fresh draw
-        block, mean, cov = proposal
-        extra = [IndependenceMove(block, mean, cov)]
+        block, mean, cov, *weights = proposal
+        extra = [IndependenceMove(block, mean, cov, weights=weights[0] if weights else None)]
     if not (hmc and hasattr(target, "_logp")):
         return Sequence(moves, *extra) if extra else moves
     # the hyperparameters (and two-level styles) are nearly Gaussian but strongly correlated,
@@ -598,16 +684,17 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
         n_adapt = _adapt_record(backend, done, _adapt_steps(n_steps) if independence else None)
     elif independence:
         n_adapt = _adapt_steps(n_steps)
+    modes = None
     if independence:
         cov = target.laplace(centre)
         block = _independence_block(target, cov)
+        modes = idle_factor_modes(target, centre, cov, block)
 
         def phase_moves(first: bool):
             if first:
-                return _default_moves(target, hmc, (block, centre[block],
-                                                    cov[np.ix_(block, block)]))
+                return _default_moves(target, hmc, _mixture_proposal(block, modes))
             z = be.get_chain()[n_adapt // 3:n_adapt][..., block].reshape(-1, block.size)
-            return _default_moves(target, hmc, (block, z.mean(0), _pooled_cov(z)))
+            return _default_moves(target, hmc, _mixture_proposal(block, modes, z))
 
         # (a resumed file's stored adaptation may be longer than this call's n_steps)
         phases = ([(min(n_adapt, n_steps), True), (n_steps, False)] if n_adapt
@@ -638,6 +725,9 @@ def _run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pr
     info = {"seconds": seconds, "factorised": False, **_phase_stats(ran)}
     if independence:
         info["adapt_steps"] = n_adapt
+        info["modes"] = [{"weight": m["weight"], "logp": m["logp"],
+                          "log_evidence": m["log_evidence"], "searched_from": m["searched_from"],
+                          "x": m["x"].tolist()} for m in modes]
     return _finish(target, be.get_chain(), be.get_log_prob(), be.accepted / max(be.iteration, 1),
                    burn, thin, info, min_burn=n_adapt)
 
