@@ -31,6 +31,12 @@ steps, max tau 60 / 100 / 153 and growing. The couple style is bimodal (style:co
 main mode near +1.2, the couples apart; a second near 0, both couple vectors at the simplex's
 centre) and walkers cross between the modes slowly: the coordinate's mean drifts 1.17 / 1.07 /
 0.95 over steps 1,000-2,000 / 2,000-3,000 / 3,000-4,000. A longer chain will not meet the target.
+
+Session 22, the independence proposal with one component per idle-factor mode
+(``idle_factor_modes``; second mode at Laplace weight 0.23), a 1,000-step probe with this
+model and these settings (not a run of this file): the second mode held 20-25% of the walkers
+in every 100-step block; max R-hat 1.099 / 1.071 / 1.063 and min bulk ESS 346 / 475 / 522 at
+600 / 800 / 1,000 steps, worst coordinate style:emotion[0, 0] (tau 24 and growing).
 """
 
 from __future__ import annotations
