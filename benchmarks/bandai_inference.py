@@ -53,22 +53,28 @@ WALKS = ("walk", "walk-back", "walk-left", "walk-right")
 # max_iter; its default of 200 stops far from the optima, see handshake_inference.py)
 # canonical_side: mirror the clips that walk to the actor's right (bayesmotion.data.mirror;
 # label-free, from the root's sideways speed), so walk-left and walk-right share one side
+# pose_space: what the bottom layer models (HGPDM(pose_space=...)): "affective", the 18 pose
+# features of every frame (session 23); "angles" (joint angles, with rest frames) is the
+# ablation, run with --pose-space angles
 FULL = {"contents": WALKS, "fps": 15.0, "model_frames": 60, "max_iter": 300, "refit_iter": 100,
         "n_steps": 400, "emotion_starts": "vertices", "projection_iter": 1000,
-        "canonical_side": True, "rest_frames": True}
+        "canonical_side": True, "pose_space": "affective"}
 QUICK = {"contents": WALKS[2:], "fps": 7.5, "model_frames": 20, "max_iter": 30,
          "refit_iter": 10, "n_steps": 60, "emotion_starts": "vertices", "projection_iter": 200,
-         "canonical_side": True, "rest_frames": True}
+         "canonical_side": True, "pose_space": "affective"}
 
 
-def run(quick: bool, root: str | Path | None = None) -> dict:
+def run(quick: bool, root: str | Path | None = None, pose_space: str | None = None) -> dict:
     import bayesmotion  # noqa: F401  (float64 on)
     from bayesmotion.data.bandai import load_bandai
     from bayesmotion.data.motion import MotionDataset
     from bayesmotion.evaluate import format_confusion, leave_one_out
     from bayesmotion.model import HGPDM
 
-    cfg = QUICK if quick else FULL
+    cfg = dict(QUICK if quick else FULL)
+    if pose_space is not None:
+        cfg["pose_space"] = pose_space
+    cfg["rest_frames"] = cfg["pose_space"] == "angles"  # joint angles only (see module doc)
     root = Path(root) if root is not None else DATA_ROOT
     base = {"name": NAME, "mode": "quick" if quick else "full", "settings": dict(cfg)}
     if not (root / "data").is_dir() and not any(root.glob("*.bvh")):
@@ -79,7 +85,7 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
                           {"emotion": data.levels["emotion"]}, name="Bandai walks")
     spec = HGPDM(latent_dim=6, interaction_dim=3, interaction_factors=("emotion",),
                  dynamics_factors=("emotion",), rest_frames=cfg["rest_frames"],
-                 canonical_side=cfg["canonical_side"])
+                 canonical_side=cfg["canonical_side"], pose_space=cfg["pose_space"])
     t_fit = time.perf_counter()
     full = spec.fit(clips, max_iter=cfg["max_iter"], progress=False)
     t_fit = time.perf_counter() - t_fit
@@ -125,8 +131,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny settings (checks it runs)")
     ap.add_argument("--root", default=None, help=f"Bandai folder (default {DATA_ROOT})")
+    ap.add_argument("--pose-space", choices=("affective", "angles"), default=None,
+                    help="the model's pose space (default: affective; angles is the ablation)")
     a = ap.parse_args(argv)
-    res = run(a.quick, a.root)
+    res = run(a.quick, a.root, a.pose_space)
     write_json(RESULTS / f"{NAME}.json", {**res, "status": "ok", "machine": machine_info()})
     print(res.get("skipped") or res["confusion_table"])
     return 0

@@ -61,6 +61,10 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--canonical-side", action="store_true",
                    help="mirror one-actor clips that move to the actor's right, at fit and at "
                         "inference (label-free)")
+    f.add_argument("--pose-space", choices=("angles", "affective"), default="angles",
+                   help="model joint angles (default; the model generates motion) or the 18 "
+                        "affective pose features of every frame (infers emotion across "
+                        "actions; cannot generate)")
     s = add("sample", "emcee posterior of a fitted model")
     s.add_argument("model")
     s.add_argument("--out", required=True)
@@ -132,7 +136,8 @@ def _cmd_fit(a):
 
     ds = load_data(a.data, a.fps)
     m = HGPDM(latent_dim=a.latent_dim, interaction_dim=a.interaction_dim,
-              rest_frames=a.rest_frames, canonical_side=a.canonical_side).fit(
+              rest_frames=a.rest_frames, canonical_side=a.canonical_side,
+              pose_space=a.pose_space).fit(
         ds, max_iter=a.max_iter)
     m.save(a.out)
     d = m.diagnostics

@@ -307,6 +307,9 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
              start=None, seed: int = 0, predictor: Predictor | None = None,
              **styles) -> Rollout:
     """Generate a rollout; see :meth:`FittedHGPDM.generate`."""
+    for codec in model.codecs:
+        if not codec.decodes:
+            codec.decode()  # raises, naming why this model cannot generate
     if n_frames <= model.spec.order:
         raise BayesmotionError(f"n_frames must exceed the dynamics order ({model.spec.order})")
     if n_samples < 0:

@@ -107,7 +107,7 @@ def load(path):
     Raises:
         ModelFileError: the file is missing, corrupted, foreign, or of another format version.
     """
-    from .data.representation import PoseCodec
+    from .data.affective_codec import codec_from_saved
     from .fitted import FittedHGPDM, TrialRecord
     from .model import HGPDM, ModelData
 
@@ -116,7 +116,7 @@ def load(path):
     try:
         spec = HGPDM.from_dict(meta["spec"])
         params = {k: arrays[f"param/{k}"] for k in meta["params"]}
-        codecs = tuple(PoseCodec.from_saved(m, arrays, f"codec{a}/")
+        codecs = tuple(codec_from_saved(m, arrays, f"codec{a}/")
                        for a, m in enumerate(meta["codecs"]))
         A = len(codecs)
         data = ModelData(tuple(arrays[f"Y/{a}"] for a in range(A)),

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import layers
+from .data.affective_codec import check_pose_space, fit_codec
 from .data.motion import MotionDataset
 from .data.representation import PoseCodec
 from .errors import BayesmotionError
@@ -79,6 +80,12 @@ class HGPDM:
         canonical_side: mirror every one-actor motion that moves to the actor's right before
             encoding, training clips and new clips alike (label-free;
             bayesmotion.data.mirror.canonical_side); generated motion is on the left side.
+        pose_space: what the bottom layer models: "angles" (joint angles and the root's
+            motion, :class:`PoseCodec`; the model generates motion) or "affective" (the 18
+            affective pose features of every frame, :mod:`bayesmotion.data.affective_codec`;
+            invariant to the body's position, heading and size, for inferring emotion across
+            actions; such a model cannot generate motion, and ``scaling``/``rest_frames`` do
+            not apply: the features are standardised one by one).
         priors: prior settings.
     """
 
@@ -91,9 +98,11 @@ class HGPDM:
     scaling: str = "type"
     rest_frames: bool = False
     canonical_side: bool = False
+    pose_space: str = "angles"
     priors: Priors = field(default_factory=Priors)
 
     def __post_init__(self):
+        check_pose_space(self.pose_space, self.rest_frames)
         if self.order not in (1, 2):
             raise BayesmotionError(f"order must be 1 or 2, got {self.order}")
         if self.latent_dim < 1 or self.interaction_dim < 1:
@@ -127,7 +136,7 @@ class HGPDM:
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in ("latent_dim", "interaction_dim", "order",
                                              "root_mode", "scaling", "rest_frames",
-                                             "canonical_side")}
+                                             "canonical_side", "pose_space")}
         d["interaction_factors"] = list(self.interaction_factors or ())
         d["dynamics_factors"] = list(self.dynamics_factors or ())
         d["priors"] = self.priors.to_dict()
@@ -150,7 +159,7 @@ class HGPDM:
 
 # --------------------------------------------------------------------------- data preparation
 def fit_codecs(spec: HGPDM, dataset: MotionDataset) -> tuple[PoseCodec, ...]:
-    """One PoseCodec per actor slot, fitted on all training trials."""
+    """One codec per actor slot (of ``spec.pose_space``), fitted on all training trials."""
     if spec.canonical_side and dataset.n_actors != 1:
         raise BayesmotionError(f"canonical_side mirrors one-actor clips; this dataset has "
                                f"{dataset.n_actors} actors per trial, and mirroring each alone "
@@ -161,8 +170,8 @@ def fit_codecs(spec: HGPDM, dataset: MotionDataset) -> tuple[PoseCodec, ...]:
         partners = [t.actors[1 - a] for t in dataset] if spec.root_mode == "partner" else None
         if spec.root_mode == "partner" and dataset.n_actors != 2:
             raise BayesmotionError("root_mode='partner' needs two-actor trials")
-        codecs.append(PoseCodec.fit(motions, partners, spec.root_mode, spec.scaling,
-                                    spec.rest_frames, spec.canonical_side))
+        codecs.append(fit_codec(spec.pose_space, motions, partners, spec.root_mode,
+                                spec.scaling, spec.rest_frames, spec.canonical_side))
     return tuple(codecs)
 
 

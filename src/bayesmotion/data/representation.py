@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, replace
-from typing import Literal, NamedTuple
+from typing import ClassVar, Literal, NamedTuple
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -192,6 +192,8 @@ class PoseCodec:
     side_threshold: float = 0.15
     fold_root: bool = False
     angle_reference: np.ndarray | None = None
+    decodes: ClassVar[bool] = True
+    pose_space: ClassVar[str] = "angles"
 
     @property
     def dim(self) -> int:
@@ -539,7 +541,8 @@ class PoseCodec:
         return out
 
     def to_meta(self) -> dict:
-        return {"root_mode": self.root_mode, "scaling": self.scaling, "mover": self.mover,
+        return {"pose_space": self.pose_space, "root_mode": self.root_mode,
+                "scaling": self.scaling, "mover": self.mover,
                 "heading_axis": self.heading_axis, "skeleton": self.skeleton.to_dict(),
                 "fps": self.fps, "side_threshold": self.side_threshold,
                 "fold_root": self.fold_root}
