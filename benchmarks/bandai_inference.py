@@ -29,8 +29,10 @@ channels: 50.0% (8/16), within the fragility.
 ``bayesmotion.evaluate.leave_one_out``
 then refits it without each clip (warm-started, ``refit_iter`` L-BFGS iterations), infers the
 held-out clip's emotion with ``infer_emotion`` and scores it; the affective-feature classifier
-(Bhattacharya et al.'s 18 pose features, logistic regression) and a mean-pose nearest neighbour
-run on the same folds. The emotion level is chosen by the Laplace evidence of a projection with
+(Bhattacharya et al.'s 18 pose features, logistic regression), Ho et al.'s relative-strength
+ranking (one RankSVM per emotion on keyframe features, the largest standardised strength wins;
+session 23) and a mean-pose nearest neighbour run on the same folds.
+The emotion level is chosen by the Laplace evidence of a projection with
 the emotion held at each level (``emotion_starts="vertices"``; sessions 11-13 kept the best joint
 optimum of K + 1 starts, ``"levels"``: 43.8%). Reported: the confusion matrix in Taubert et al.'s
 Table 1 layout, accuracy +- binomial sd, 90% interval coverage of the true coordinate, the
@@ -120,6 +122,8 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
                   f"{100 * cal['coverage']:.0f}%); median power "
                   f"{cal['likelihood_power']['median']:.2g}")),
         headline("  affective-feature classifier, same folds", 100 * feat, "%"),
+        headline("  relative-strength ranking (Ho et al.), same folds",
+                 100 * res["baselines"]["relative_strength"], "%"),
         headline("  mean-pose nearest neighbour, same folds",
                  100 * res["baselines"]["mean_pose_nn"], "%"),
         headline("  seconds per clip (refit + inference)", res["seconds"] / len(clips), "s"),

@@ -80,6 +80,8 @@ def run(quick: bool) -> dict:
         _tempered_row(cal, quick),
         headline("  affective-feature classifier, same folds",
                  100 * res["baselines"]["affective_features"], "%"),
+        headline("  relative-strength ranking (Ho et al.), same folds",
+                 100 * res["baselines"]["relative_strength"], "%"),
         headline("  mean-pose nearest neighbour, same folds",
                  100 * res["baselines"]["mean_pose_nn"], "%"),
         headline("  seconds per trial (refit + inference)", res["seconds"] / len(ds), "s"),

@@ -46,7 +46,7 @@ def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
         np.mean([t["true"] in t["label_set"] for t in r["trials"]]))
     assert r["interval_coverage"] == pytest.approx(
         np.mean([t["intervals_cover"] for t in r["trials"]]))
-    assert set(r["baselines"]) == {"affective_features", "mean_pose_nn"}
+    assert set(r["baselines"]) == {"affective_features", "relative_strength", "mean_pose_nn"}
     assert [h["metric"].strip()[:6] for h in saved["headline"]] == \
         ["H-GPDM", "temper", "affect", "mean-p", "second"]
     cal = r["calibrated"]

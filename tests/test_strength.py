@@ -7,6 +7,7 @@ from scipy.optimize import minimize
 import bayesmotion as bm
 from bayesmotion.baselines.strength import (
     PCA,
+    StrengthClassifier,
     fit_strength_features,
     keyframe_features_from_positions,
     ordered_pairs,
@@ -146,6 +147,31 @@ def test_fit_strength_ranks_held_out_clips_on_a_planted_axis():
     assert ranking_accuracy(model, X[1::2], labels[1::2]) == 1.0
     with pytest.raises(bm.BayesmotionError, match="neutral='neutral' right"):
         fit_strength_features(X[:4], ["happy", "happy", "normal", "normal"])
+
+
+def test_strength_classifier_reads_each_emotion_on_its_own_axis():
+    # four emotions, each raising its own feature: one ranker per emotion finds its axis, so
+    # held-out clips get their emotion; a single happy > neutral > sad axis could not tell
+    # happy from angry (both rank above neutral)
+    rng = np.random.default_rng(6)
+    emotions = ("angry", "happy", "neutral", "sad")
+    labels = [e for e in emotions for _ in range(10)]
+    X = rng.normal(size=(len(labels), 20))
+    for k, e in enumerate(emotions):
+        X[:, 2 * k] += 3.0 * (np.array(labels) == e)
+    clf = StrengthClassifier(n_components=12).fit(X[::2], labels[::2])
+    assert clf.classes == emotions
+    assert np.mean(clf.predict(X[1::2]) == np.array(labels[1::2])) >= 0.9
+    S = clf.strengths(X[::2])  # standardised on the training clips
+    np.testing.assert_allclose(S.mean(0), 0.0, atol=1e-9)
+    np.testing.assert_allclose(S.std(0), 1.0, rtol=1e-9)
+    for k, e in enumerate(emotions):  # each ranker puts its emotion's clips on top
+        mine = np.array(labels[::2]) == e
+        assert S[mine, k].mean() > 1.0 and S[~mine, k].mean() < 0.0
+    with pytest.raises(bm.BayesmotionError, match="not fitted"):
+        StrengthClassifier().predict(X[:1])
+    with pytest.raises(bm.BayesmotionError, match="at least two emotions"):
+        StrengthClassifier().fit(X[:4], ["sad"] * 4)
 
 
 def test_keyframe_features_shape_and_scale_invariance():

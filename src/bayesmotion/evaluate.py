@@ -1,5 +1,8 @@
 """Evaluation harness: leave-one-trial-out emotion inference, confusion matrix, calibration,
-and baselines on the same folds.
+and baselines on the same folds: a logistic regression on the affective clip features
+(Bhattacharya et al. 2021), Ho et al.'s (2017) relative emotion strength as a classifier
+(:class:`~bayesmotion.baselines.strength.StrengthClassifier` on keyframe features) and a
+nearest neighbour on the mean pose.
 
 Each fold refits the model without the held-out trial, warm-started from the full-data MAP
 (latents of the remaining trials, hyperparameters), for ``refit_iter`` L-BFGS iterations -- a
@@ -19,6 +22,7 @@ from .baselines.classifier import (
     mean_pose_features,
     trial_features,
 )
+from .baselines.strength import StrengthClassifier, keyframe_features
 from .data.motion import MotionDataset
 from .errors import BayesmotionError
 from .infer import infer_emotion
@@ -290,12 +294,15 @@ def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
 def _baselines(dataset: MotionDataset, factor: str) -> dict:
     y = np.array(dataset.labels(factor))
     feats = trial_features(dataset)
+    keys = trial_features(dataset, keyframe_features)
     poses = trial_features(dataset, mean_pose_features)
-    out = {"affective_features": [], "mean_pose_nn": []}
+    out = {"affective_features": [], "relative_strength": [], "mean_pose_nn": []}
     for i in range(len(dataset)):
         tr = np.arange(len(dataset)) != i
         out["affective_features"].append(
             LogisticRegression().fit(feats[tr], y[tr]).predict(feats[i:i + 1])[0])
+        out["relative_strength"].append(
+            StrengthClassifier().fit(keys[tr], y[tr]).predict(keys[i:i + 1])[0])
         out["mean_pose_nn"].append(NearestNeighbour().fit(poses[tr], y[tr]).predict(
             poses[i:i + 1])[0])
     return out

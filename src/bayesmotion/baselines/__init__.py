@@ -18,6 +18,7 @@ from .classifier import (
 )
 from .rose import RBFInterpolant, Verb, emotion_coordinates, fit_rbf, fit_verb
 from .strength import (
+    StrengthClassifier,
     StrengthModel,
     fit_strength,
     fit_strength_features,
@@ -38,8 +39,8 @@ from .unuma import (
 
 __all__ = [
     "EmotionComponent", "FourierModel", "LogisticRegression", "NearestNeighbour",
-    "RBFInterpolant", "StrengthModel", "Verb", "accuracy", "apply_amaya", "blend",
-    "detect_period", "emotion_component", "emotion_coordinates", "fit_amaya", "fit_rbf",
+    "RBFInterpolant", "StrengthClassifier", "StrengthModel", "Verb", "accuracy", "apply_amaya",
+    "blend", "detect_period", "emotion_component", "emotion_coordinates", "fit_amaya", "fit_rbf",
     "fit_strength", "fit_strength_features", "fit_verb", "fourier_eval", "fourier_fit",
     "keyframe_features", "leave_one_out_predictions", "mean_pose_features", "ranking_accuracy",
     "simplify_curve", "superpose", "trial_features",

@@ -24,13 +24,17 @@ The pipeline, per clip:
 
 The default order is happy > neutral > sad and angry > neutral (with its transitive closure:
 happy > sad, angry > sad). Bandai calls neutral ``"normal"``: pass ``neutral="normal"``.
+
+:class:`StrengthClassifier` turns relative strength into an emotion classifier (the evaluation
+harness's baseline): one ranking function per emotion, each ordering that emotion's clips above
+every other emotion's, as Ho et al. learn one relative attribute per emotion.
 """
 
 from __future__ import annotations
 
 import heapq
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -300,3 +304,52 @@ def ranking_accuracy(model: StrengthModel, motions: Sequence[Motion] | np.ndarra
     if len(O) == 0:
         raise BayesmotionError("no ordered pair to evaluate among these labels")
     return float(np.mean(r[O[:, 0]] > r[O[:, 1]]))
+
+
+@dataclass(frozen=True, eq=False)
+class StrengthClassifier:
+    """Ho et al.'s relative strength as a classifier: the emotion whose strength is largest.
+
+    ``fit`` learns one ranking function per emotion k (:func:`fit_strength_features` with the
+    order "k above every other emotion", similar pairs within each emotion: the relative
+    attribute "how k is this clip"). Each function's scale is arbitrary, so its scores are
+    standardised by their mean and standard deviation over the training clips; a clip gets
+    the emotion of its largest standardised strength. Immutable: ``fit`` returns a new
+    classifier; works on precomputed (N, F) keyframe features (:func:`keyframe_features`).
+    """
+
+    n_components: int | float = 0.95
+    C: float = 1.0
+    classes: tuple = ()
+    models: tuple = ()
+    mean: np.ndarray | None = None
+    scale: np.ndarray | None = None
+
+    def fit(self, X, y) -> StrengthClassifier:
+        X = np.asarray(X, dtype=np.float64)
+        y = [str(v) for v in y]
+        if X.ndim != 2 or X.shape[0] != len(y):
+            raise BayesmotionError(f"X must be (N, F) with one label per row; got {X.shape} "
+                                   f"and {len(y)} labels")
+        classes = tuple(sorted(set(y)))
+        if len(classes) < 2:
+            raise BayesmotionError(f"need at least two emotions to rank, got {list(classes)}")
+        models = tuple(fit_strength_features(X, y, order=[(k, o) for o in classes if o != k],
+                                             n_components=self.n_components, C=self.C)
+                       for k in classes)
+        S = np.stack([m.score_features(X) for m in models], axis=1)
+        sd = S.std(axis=0)
+        return replace(self, classes=classes, models=models, mean=S.mean(axis=0),
+                       scale=np.where(sd > 0, sd, 1.0))
+
+    def strengths(self, X) -> np.ndarray:
+        """(N, K) standardised strength of each emotion (``classes`` order)."""
+        if not self.models:
+            raise BayesmotionError("StrengthClassifier is not fitted: call fit(X, y) first")
+        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        S = np.stack([m.score_features(X) for m in self.models], axis=1)
+        return (S - self.mean) / self.scale
+
+    def predict(self, X) -> np.ndarray:
+        """(N,) emotion of the largest standardised strength."""
+        return np.asarray(self.classes)[np.argmax(self.strengths(X), axis=1)]
