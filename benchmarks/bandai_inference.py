@@ -4,8 +4,9 @@
 
 Session 23: the model's pose space is the 18 affective pose features of every frame
 (``HGPDM(pose_space="affective")``, bayesmotion.data.affective_codec), not the joint angles:
-81.2% (13/16) in a probe and in the benchmark run (2026-11-25), against 50.0% (8/16) for joint
-angles with session 21's codec and 75% for the affective-feature classifier on the same folds.
+81.2% (13/16) in a probe and in two benchmark runs (2026-11-25; the misses differ), against
+50.0% (8/16) for joint angles with session 21's codec, 75% for the affective-feature classifier
+and 81.2% for the relative-strength ranking on the same folds.
 ``--pose-space angles`` runs the joint-angle configuration the history below describes.
 
 The one-actor H-GPDM (emotion in the interaction and dynamics layers) is fitted by MAP on the
