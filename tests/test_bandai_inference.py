@@ -48,7 +48,7 @@ def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
         np.mean([t["intervals_cover"] for t in r["trials"]]))
     assert set(r["baselines"]) == {"affective_features", "relative_strength", "mean_pose_nn"}
     assert [h["metric"].strip()[:6] for h in saved["headline"]] == \
-        ["H-GPDM", "temper", "affect", "mean-p", "second"]
+        ["H-GPDM", "temper", "affect", "relati", "mean-p", "second"]
     cal = r["calibrated"]
     if "error" in cal:  # no power reaches the coverage: the most any reaches is reported
         assert "no likelihood power" in cal["error"]
