@@ -46,8 +46,9 @@ style:couple[0, 0] and style:emotion[0, 0]. R-hat now falls about as 1/steps. Ru
 chain on failed: the fit is not bit-reproducible between runs (the layers' factorisations take
 more OpenBLAS threads when the other processes leave cores idle, ``bayesmotion._blas``), so the
 refit got another cache key and started a new chain. The fitted model is now cached beside the
-chain (``posterior_convergence_model_<max_iter>.npz``) and reused, so a longer run (``steps``
-raised; the checkpoints past it are skipped) or one stopped by the suite's timeout resumes.
+chain (``posterior_convergence_model_<max_iter>_<version>.npz``) and reused, so a longer run
+(``steps`` raised; the checkpoints past it are skipped) or one stopped by the suite's timeout
+resumes.
 """
 
 from __future__ import annotations
@@ -68,20 +69,32 @@ SETTINGS = {"full": {"max_iter": 1000, "steps": 4000,
 TARGET_RHAT, TARGET_ESS = 1.01, 400
 
 
+def model_path(max_iter: int) -> Path:
+    """The cached demo model of this package version and fit length."""
+    from bayesmotion import __version__
+
+    return CACHE / f"posterior_convergence_model_{max_iter}_{__version__}.npz"
+
+
 def demo_model(max_iter: int, cache: Path | None = None):
-    """The demo's MAP fit; with ``cache``, read from (or written to) a model file there, so
-    the chain keyed on its parameters can be resumed (the fit is not bit-reproducible)."""
+    """The demo's MAP fit; with ``cache`` (a file, :func:`model_path`), read from it or written
+    to it, so the chain keyed on its parameters can be resumed (the fit is not
+    bit-reproducible). An unreadable file is refitted and replaced."""
     from bayesmotion import HGPDM, load, load_handshakes
     from bayesmotion.demo import _split
+    from bayesmotion.errors import ModelFileError
 
-    path = None if cache is None else cache / f"posterior_convergence_model_{max_iter}.npz"
+    path = cache
     if path is not None and path.exists():
-        return load(path)
+        try:
+            return load(path)
+        except ModelFileError as e:
+            warnings.warn(f"refitting the demo model: {e}", stacklevel=2)
     train, _ = _split(load_handshakes(seed=0, fps=10.0))
     model = HGPDM().fit(train, max_iter=max_iter, seed=0, progress=False)
     if path is not None:
         path.parent.mkdir(exist_ok=True)
-        model.save(path)  # atomic
+        model.save(path)  # atomic: a stopped run leaves no half-written file
     return model
 
 
@@ -133,8 +146,8 @@ def run(quick: bool) -> dict:
 
     cfg = SETTINGS["quick" if quick else "full"]
     t0 = time.perf_counter()
-    cached = (CACHE / f"posterior_convergence_model_{cfg['max_iter']}.npz").exists()
-    model = demo_model(cfg["max_iter"], CACHE)
+    cached = model_path(cfg["max_iter"]).exists()
+    model = demo_model(cfg["max_iter"], model_path(cfg["max_iter"]))
     fit_s = time.perf_counter() - t0
     path = CACHE / f"posterior_convergence_{_key(model)}.h5"
     resumed_from = (emcee.backends.HDFBackend(str(path), read_only=True).iteration

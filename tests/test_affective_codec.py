@@ -11,7 +11,7 @@ from bayesmotion.errors import BayesmotionError, ModelFileError
 from bayesmotion.features.pose import POSE_FEATURE_NAMES, affective_features
 
 from .conftest import make_tiny_dataset
-from .test_model import _rewrite
+from .test_model import _rewrite, _with_meta
 
 
 @pytest.fixture(scope="module")
@@ -31,6 +31,8 @@ def test_pose_space_is_checked():
         bm.HGPDM(pose_space="features")
     with pytest.raises(BayesmotionError, match="rest frames leave unchanged"):
         bm.HGPDM(pose_space="affective", rest_frames=True)
+    with pytest.raises(BayesmotionError, match="standardises each feature"):
+        bm.HGPDM(pose_space="affective", scaling="channel")
 
 
 def test_codec_standardises_the_pose_features(tiny_data):
@@ -111,3 +113,36 @@ def test_cli_names_what_an_affective_model_cannot_do(capsys, affective_model, tm
         capsys, ["fit", "builtin:handshakes", "--out", str(tmp_path / "m.npz"),
                  "--pose-space", "affective", "--rest-frames"])
     assert not (tmp_path / "m.npz").exists()
+
+
+def test_model_files_before_pose_spaces_load_as_joint_angle_models(tiny_model, tmp_path):
+    from bayesmotion.data.representation import PoseCodec
+
+    good = tmp_path / "angles.npz"
+    tiny_model.save(good)
+
+    def strip(meta):
+        del meta["spec"]["pose_space"]
+        for c in meta["codecs"]:
+            del c["pose_space"]
+
+    old = bm.load(_with_meta(good, tmp_path / "old.npz", strip))
+    assert old.spec.pose_space == "angles"
+    assert all(isinstance(c, PoseCodec) for c in old.codecs)
+    np.testing.assert_array_equal(old.data.Y[0], tiny_model.data.Y[0])
+
+
+def test_inconsistent_pose_space_metadata_is_refused(affective_model, tmp_path):
+    good = tmp_path / "good.npz"
+    affective_model.save(good)
+
+    def angles_spec(meta):
+        meta["spec"]["pose_space"] = "angles"
+
+    def list_codec(meta):
+        meta["codecs"][0] = ["not", "a", "mapping"]
+
+    with pytest.raises(ModelFileError, match="does not match its codecs"):
+        bm.load(_with_meta(good, tmp_path / "a.npz", angles_spec))
+    with pytest.raises(ModelFileError, match="codec metadata must be a mapping"):
+        bm.load(_with_meta(good, tmp_path / "b.npz", list_codec))

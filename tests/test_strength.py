@@ -170,6 +170,8 @@ def test_strength_classifier_reads_each_emotion_on_its_own_axis():
         assert S[mine, k].mean() > 1.0 and S[~mine, k].mean() < 0.0
     with pytest.raises(bm.BayesmotionError, match="not fitted"):
         StrengthClassifier().predict(X[:1])
+    with pytest.raises(bm.BayesmotionError, match=r"X must be \(N, 20\)"):
+        clf.predict(X[:2, :5])
     with pytest.raises(bm.BayesmotionError, match="at least two emotions"):
         StrengthClassifier().fit(X[:4], ["sad"] * 4)
 

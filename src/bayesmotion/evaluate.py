@@ -321,8 +321,8 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         refit_iter: warm-started L-BFGS iterations per fold.
         n_steps: emcee steps of each inference.
         q: credible level whose coverage is reported.
-        baselines: also run the affective-feature classifier and a mean-pose nearest neighbour
-            on the same folds.
+        baselines: also run the affective-feature classifier, Ho et al.'s relative-strength
+            ranking and a mean-pose nearest neighbour on the same folds.
         fit_kwargs: further options of every fit (e.g. ``optimize_style=("content",)``).
         calibrate: also infer each held-out trial from a tempered posterior whose likelihood
             power is calibrated on the *other* trials' plain posteriors (without trial i:

@@ -50,7 +50,8 @@ class FittedHGPDM:
     Attributes:
         spec: the resolved HGPDM specification.
         params: unconstrained MAP parameters (see bayesmotion.params).
-        codecs: per actor slot, the PoseCodec between motions and Y.
+        codecs: per actor slot, the codec between motions and Y (a PoseCodec, or an
+            AffectiveCodec for ``pose_space="affective"``).
         levels: factor -> ordered level names.
         data: the training data the posterior conditions on.
         trials: per training trial, a TrialRecord.

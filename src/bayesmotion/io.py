@@ -118,6 +118,10 @@ def load(path):
         params = {k: arrays[f"param/{k}"] for k in meta["params"]}
         codecs = tuple(codec_from_saved(m, arrays, f"codec{a}/")
                        for a, m in enumerate(meta["codecs"]))
+        if any(c.pose_space != spec.pose_space for c in codecs):
+            raise ModelFileError(f"{path}: corrupted model file: its specification's pose space "
+                                 f"{spec.pose_space!r} does not match its codecs' "
+                                 f"{[c.pose_space for c in codecs]}")
         A = len(codecs)
         data = ModelData(tuple(arrays[f"Y/{a}"] for a in range(A)),
                          {f: arrays[f"onehot/{f}"] for f in meta["factors"]},

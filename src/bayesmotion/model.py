@@ -30,7 +30,6 @@ import numpy as np
 from . import layers
 from .data.affective_codec import check_pose_space, fit_codec
 from .data.motion import MotionDataset
-from .data.representation import PoseCodec
 from .errors import BayesmotionError
 from .params import (
     STYLE_PREFIX,
@@ -81,11 +80,12 @@ class HGPDM:
             encoding, training clips and new clips alike (label-free;
             bayesmotion.data.mirror.canonical_side); generated motion is on the left side.
         pose_space: what the bottom layer models: "angles" (joint angles and the root's
-            motion, :class:`PoseCodec`; the model generates motion) or "affective" (the 18
-            affective pose features of every frame, :mod:`bayesmotion.data.affective_codec`;
-            invariant to the body's position, heading and size, for inferring emotion across
-            actions; such a model cannot generate motion, and ``scaling``/``rest_frames`` do
-            not apply: the features are standardised one by one).
+            motion, :class:`~bayesmotion.data.representation.PoseCodec`; the model generates
+            motion) or "affective" (the 18 affective pose features of every frame,
+            :mod:`bayesmotion.data.affective_codec`; invariant to the body's position, heading
+            and size, for inferring emotion across actions; such a model cannot generate
+            motion; ``rest_frames`` and a ``scaling`` other than the default are refused:
+            the features are standardised one by one).
         priors: prior settings.
     """
 
@@ -102,7 +102,7 @@ class HGPDM:
     priors: Priors = field(default_factory=Priors)
 
     def __post_init__(self):
-        check_pose_space(self.pose_space, self.rest_frames)
+        check_pose_space(self.pose_space, self.rest_frames, self.scaling)
         if self.order not in (1, 2):
             raise BayesmotionError(f"order must be 1 or 2, got {self.order}")
         if self.latent_dim < 1 or self.interaction_dim < 1:
@@ -158,7 +158,7 @@ class HGPDM:
 
 
 # --------------------------------------------------------------------------- data preparation
-def fit_codecs(spec: HGPDM, dataset: MotionDataset) -> tuple[PoseCodec, ...]:
+def fit_codecs(spec: HGPDM, dataset: MotionDataset) -> tuple:
     """One codec per actor slot (of ``spec.pose_space``), fitted on all training trials."""
     if spec.canonical_side and dataset.n_actors != 1:
         raise BayesmotionError(f"canonical_side mirrors one-actor clips; this dataset has "

@@ -347,6 +347,10 @@ class StrengthClassifier:
         if not self.models:
             raise BayesmotionError("StrengthClassifier is not fitted: call fit(X, y) first")
         X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        width = self.models[0].pca.mean.size
+        if X.ndim != 2 or X.shape[1] != width:
+            raise BayesmotionError(f"X must be (N, {width}) keyframe features like the training "
+                                   f"ones; got {X.shape}")
         S = np.stack([m.score_features(X) for m in self.models], axis=1)
         return (S - self.mean) / self.scale
 

@@ -34,7 +34,7 @@ from .representation import Encoded, PoseCodec, check_layout
 POSE_SPACES = ("angles", "affective")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class AffectiveCodec:
     """Fitted map from one actor slot's motions to standardised affective pose features.
 
@@ -43,7 +43,7 @@ class AffectiveCodec:
             side) every motion goes through first; its channel statistics are not used.
         mean: (18,) per-feature mean over the training frames.
         scale: (18,) per-feature standard deviation over the training frames (1 where a
-            feature is constant).
+            feature is constant, to rounding).
     """
 
     base: PoseCodec
@@ -86,8 +86,9 @@ class AffectiveCodec:
                              side_threshold)
         proto = cls(base, np.zeros(len(POSE_FEATURE_NAMES)), np.ones(len(POSE_FEATURE_NAMES)))
         F = np.concatenate([proto._features(m)[0] for m in motions])
-        std = F.std(0)
-        return cls(base, F.mean(0), np.where(std > 0, std, 1.0))
+        mean, std = F.mean(0), F.std(0)
+        # a feature constant but for rounding keeps scale 1 (not noise blown up to unit sd)
+        return cls(base, mean, np.where(std > 1e-9 * (1.0 + np.abs(mean)), std, 1.0))
 
     def prepare(self, motion: Motion) -> tuple[Motion, bool]:
         """The motion as the features read it (root folded, on the canonical side) and whether
@@ -150,13 +151,14 @@ def fit_codec(pose_space: str, motions, partners=None, root_mode: str = "velocit
               scaling: str = "type", rest_frames: bool = False, canonical_side: bool = False):
     """The codec of ``pose_space`` ("angles": :class:`PoseCodec`, "affective":
     :class:`AffectiveCodec`) fitted on one actor slot's motions."""
-    check_pose_space(pose_space, rest_frames)
+    check_pose_space(pose_space, rest_frames, scaling)
     if pose_space == "angles":
         return PoseCodec.fit(motions, partners, root_mode, scaling, rest_frames, canonical_side)
     return AffectiveCodec.fit(motions, partners, root_mode, canonical_side)
 
 
-def check_pose_space(pose_space: str, rest_frames: bool = False) -> None:
+def check_pose_space(pose_space: str, rest_frames: bool = False,
+                     scaling: str = "type") -> None:
     """Raise BayesmotionError unless ``pose_space`` is known and its options apply."""
     if pose_space not in POSE_SPACES:
         raise BayesmotionError(f"pose_space must be one of {'/'.join(POSE_SPACES)}, got "
@@ -165,10 +167,17 @@ def check_pose_space(pose_space: str, rest_frames: bool = False) -> None:
         raise BayesmotionError("rest_frames turns joint angles only; the affective pose space "
                                "reads joint positions, which rest frames leave unchanged: "
                                "drop rest_frames")
+    if pose_space == "affective" and scaling != "type":
+        raise BayesmotionError(f"scaling={scaling!r} chooses joint-angle channel scales; the "
+                               f"affective pose space standardises each feature: leave "
+                               f"scaling at its default")
 
 
 def codec_from_saved(meta: dict, arrays, prefix: str):
     """The codec a model file holds (files without ``pose_space`` hold joint-angle codecs)."""
+    if not isinstance(meta, dict):
+        raise ValueError(f"{prefix.rstrip('/')}: codec metadata must be a mapping, got "
+                         f"{type(meta).__name__}")
     space = meta.get("pose_space", "angles")
     if space == "angles":
         return PoseCodec.from_saved(meta, arrays, prefix)
