@@ -303,13 +303,19 @@ def _start_trial(model, styles, start) -> int:
     return 0
 
 
+def check_decodes(model) -> None:
+    """Raise BayesmotionError, naming why, when the model's pose space cannot be decoded to
+    motion (``HGPDM(pose_space="affective")``)."""
+    for codec in model.codecs:
+        if not codec.decodes:
+            codec.decode()  # raises with the reason
+
+
 def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,
              start=None, seed: int = 0, predictor: Predictor | None = None,
              **styles) -> Rollout:
     """Generate a rollout; see :meth:`FittedHGPDM.generate`."""
-    for codec in model.codecs:
-        if not codec.decodes:
-            codec.decode()  # raises, naming why this model cannot generate
+    check_decodes(model)
     if n_frames <= model.spec.order:
         raise BayesmotionError(f"n_frames must exceed the dynamics order ({model.spec.order})")
     if n_samples < 0:

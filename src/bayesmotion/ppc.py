@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .generate import generate
+from .generate import check_decodes, generate
 
 SPACES = ("I", "X", "Y", "angles", "positions")
 
@@ -26,6 +26,7 @@ def generate_posterior(post, emotion="neutral", couple=None, n_frames=100, n_sam
     (within + between); ``variance_parts[space] = {"within", "between"}``; ``samples`` stacks
     ``n_samples`` sampled rollouts per draw (or the per-draw mean rollouts if n_samples = 0).
     """
+    check_decodes(post.model)  # before any draw's model is conditioned
     idx = np.linspace(0, post.n_draws - 1, min(n_draws, post.n_draws)).astype(int)
     rolls = [generate(post.model, emotion, couple, n_frames, n_samples, start, seed + k,
                       predictor=post.predictor(int(i)), **styles)
