@@ -146,3 +146,15 @@ def test_inconsistent_pose_space_metadata_is_refused(affective_model, tmp_path):
         bm.load(_with_meta(good, tmp_path / "a.npz", angles_spec))
     with pytest.raises(ModelFileError, match="codec metadata must be a mapping"):
         bm.load(_with_meta(good, tmp_path / "b.npz", list_codec))
+
+
+def test_posterior_of_an_affective_model_samples_and_refuses_generation(affective_model):
+    import warnings
+
+    with warnings.catch_warnings():  # 20 steps: a look, not a converged chain
+        warnings.simplefilter("ignore")
+        post = bm.sample_posterior(affective_model, n_steps=20, burn=5, thin=1, progress=False)
+    assert post.idata.posterior.sizes["draw"] == 15
+    assert np.all(np.isfinite(post.idata.sample_stats["lp"].values))
+    with pytest.raises(BayesmotionError, match="cannot generate motion"):
+        post.generate(emotion="happy", couple="c1", n_frames=10)
