@@ -131,9 +131,9 @@ def test_killed_run_resumes_from_hdf5_without_losing_samples(tiny_model, tmp_pat
 
     import emcee
 
-    # the test polls the file while the child writes it: without this, the reader's HDF5 lock
-    # makes the writer fail (BlockingIOError) instead of being killed
-    monkeypatch.setenv("HDF5_USE_FILE_LOCKING", "FALSE")
+    # the test polls the file while the child writes it, with HDF5's file locking on: the
+    # writer waits for the reader's lock (bayesmotion.chainfile) instead of failing
+    monkeypatch.delenv("HDF5_USE_FILE_LOCKING", raising=False)
     model_path = tmp_path / "m.npz"
     tiny_model.save(model_path)
     script = tmp_path / "run.py"

@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
+from .chainfile import ChainFile, open_h5
 from .errors import BayesmotionError
 from .model import LAYERS
 from .moves import (
@@ -451,11 +452,9 @@ def _n_walkers(n_walkers, ndim) -> int:
 def _open_backend(backend, name, W, ndim, log_prob):
     """(emcee HDF5 backend or None, steps it already holds); a resumed file must hold a run of
     this shape and of this posterior."""
-    import emcee
-
     if backend is None:
         return None, 0
-    be = emcee.backends.HDFBackend(str(backend), name=name)
+    be = ChainFile(str(backend), name=name)
     if be.initialized and be.iteration > 0:
         if be.shape != (W, ndim):
             raise BayesmotionError(f"backend {backend} holds a run of shape {be.shape} in its "
@@ -739,9 +738,7 @@ def _adapt_record(backend, done: int, n_adapt: int | None) -> int:
     """The adaptation length a backend file's run uses, stored with its chain (so a run resumed
     with another ``n_steps`` switches proposals where the first did); ``None``: this run uses no
     independence move. A resumed file must have been written with the same choice."""
-    import h5py
-
-    with h5py.File(str(backend), "r") as f:
+    with open_h5(backend, "r") as f:
         attrs = f["mcmc"].attrs
         stored = int(attrs[ADAPT_ATTR]) if ADAPT_ATTR in attrs else None
     if done and (stored is None) != (n_adapt is None):
@@ -754,23 +751,18 @@ def _adapt_record(backend, done: int, n_adapt: int | None) -> int:
         return 0
     if done:
         return stored
-    with h5py.File(str(backend), "a") as f:
+    with open_h5(backend, "a") as f:
         f["mcmc"].attrs[ADAPT_ATTR] = n_adapt
     return n_adapt
 
 
 def _planned_adapt(backend, n_steps: int) -> int:
     """The adaptation length a run will use: a resumed file's, else this run's."""
-    import h5py
-
     if backend is not None and os.path.exists(str(backend)):
-        try:
-            with h5py.File(str(backend), "r") as f:
-                attrs = f["mcmc"].attrs
-                if ADAPT_ATTR in attrs and int(attrs.get("iteration", 0)) > 0:
-                    return int(attrs[ADAPT_ATTR])
-        except (OSError, KeyError):  # not an HDF5 file, or no chain yet: _open_backend decides
-            pass
+        with open_h5(backend, "r") as f:  # waits for a reader's lock; names a foreign file
+            attrs = f["mcmc"].attrs if "mcmc" in f else {}
+            if ADAPT_ATTR in attrs and int(attrs.get("iteration", 0)) > 0:
+                return int(attrs[ADAPT_ATTR])
     return _adapt_steps(n_steps)
 
 
