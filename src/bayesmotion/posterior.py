@@ -333,6 +333,8 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         seed: seeds the walker ball, the moves and NUTS.
         backend: path of an emcee HDF5 file. An existing file with the same dimensions is resumed
             from its last step until it holds ``n_steps`` steps (nothing already saved is lost).
+            Other processes may read it meanwhile: a save waits for their lock
+            (:mod:`bayesmotion.chainfile`).
         progress: progress bars.
         method: "emcee" or "nuts".
         n_chains: NUTS chains.
