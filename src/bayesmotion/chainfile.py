@@ -9,7 +9,7 @@ losing every saved step.
 
 :class:`ChainFile` waits for such a lock instead (a reader like the one above holds it for
 milliseconds to a second), and tells a locked or unreadable file from an empty one. Every open
-of the chain's file in the package goes through :func:`open_h5`.
+of the chain's file in the package waits this way.
 """
 
 from __future__ import annotations
@@ -35,11 +35,17 @@ def open_h5(path, mode: str = "r", wait_s: float | None = None):
     """
     import h5py
 
+    return _waiting(lambda: h5py.File(str(path), mode), path, wait_s)
+
+
+def _waiting(open_file, path, wait_s: float | None = None):
+    """``open_file()``, retried while it meets another process's HDF5 lock (see
+    :func:`open_h5`)."""
     wait_s = LOCK_WAIT_S if wait_s is None else wait_s
     deadline, delay = time.monotonic() + wait_s, 0.005
     while True:
         try:
-            return h5py.File(str(path), mode)
+            return open_file()
         except BlockingIOError as e:  # errno 11: another process holds the HDF5 lock
             if time.monotonic() >= deadline:
                 raise BayesmotionError(
@@ -55,23 +61,15 @@ def open_h5(path, mode: str = "r", wait_s: float | None = None):
 
 
 class ChainFile(emcee.backends.HDFBackend):
-    """emcee's HDF5 backend, opening its file through :func:`open_h5`.
+    """emcee's HDF5 backend, whose every open waits for another process's lock
+    (:func:`open_h5`).
 
     Same arguments and file layout as :class:`emcee.backends.HDFBackend` (a file written by
     either reads with the other).
     """
 
     def open(self, mode="r"):
-        if self.read_only and mode != "r":
-            raise RuntimeError("The backend has been loaded in read-only mode. Set "
-                               "`read_only = False` to make changes.")
-        f = open_h5(self.filename, mode)
-        if not self.dtype_set and self.name in f:
-            g = f[self.name]
-            if "chain" in g:
-                self.dtype = g["chain"].dtype
-                self.dtype_set = True
-        return f
+        return _waiting(lambda: super(ChainFile, self).open(mode), self.filename)
 
     @property
     def initialized(self) -> bool:
