@@ -177,7 +177,7 @@ def synthetic_model_data(n_frames: int, d: int = 96, seed: int = 0, trial_len: i
     Trials of about ``trial_len`` frames, labels cycling over the 8 cells, so the block-diagonal
     path has 8 blocks of about n_frames / 8 rows, like the built-in set.
     """
-    from bayesmotion.model import ModelData
+    from bayesmotion.model.data import ModelData
 
     rng = np.random.default_rng(seed)
     n_trials = max(8, round(n_frames / trial_len) // 8 * 8)

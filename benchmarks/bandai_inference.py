@@ -3,7 +3,7 @@
     python benchmarks/bandai_inference.py [--quick] [--root DIR]
 
 Session 23: the model's pose space is the 18 affective pose features of every frame
-(``HGPDM(pose_space="affective")``, bayesmotion.data.affective_codec), not the joint angles:
+(``HGPDM(pose_space="affective")``, bayesmotion.codecs.affective), not the joint angles:
 81.2% (13/16) in a probe and in two benchmark runs (2026-11-25; the misses differ), against
 50.0% (8/16) for joint angles with session 21's codec, 75% for the affective-feature classifier
 and 81.2% for the relative-strength ranking on the same folds.
@@ -27,7 +27,7 @@ canonical_side=True)``), so each fold fits them on its training clips and the he
 through them as any new clip would; the codec also folds ``joint_Root``'s translation (the
 walk-back normal clip) into ``Hips`` and scales the hips' height without the bone-offset
 channels: 50.0% (8/16), within the fragility.
-``bayesmotion.evaluate.leave_one_out``
+``bayesmotion.evaluation.evaluate``
 then refits it without each clip (warm-started, ``refit_iter`` L-BFGS iterations), infers the
 held-out clip's emotion with ``infer_emotion`` and scores it; the affective-feature classifier
 (Bhattacharya et al.'s 18 pose features, logistic regression), Ho et al.'s relative-strength
@@ -75,10 +75,10 @@ QUICK = {"contents": WALKS[2:], "fps": 7.5, "model_frames": 20, "max_iter": 30,
 
 def run(quick: bool, root: str | Path | None = None, pose_space: str | None = None) -> dict:
     import bayesmotion  # noqa: F401  (float64 on)
-    from bayesmotion.data.bandai import load_bandai
     from bayesmotion.data.motion import MotionDataset
-    from bayesmotion.evaluate import format_confusion, leave_one_out
-    from bayesmotion.model import HGPDM
+    from bayesmotion.datasets.bandai import load_bandai
+    from bayesmotion.evaluation.evaluate import format_confusion, leave_one_out
+    from bayesmotion.model.spec import HGPDM
 
     cfg = dict(QUICK if quick else FULL)
     if pose_space is not None:

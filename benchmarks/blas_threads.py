@@ -37,7 +37,10 @@ def measure_here(repeats: int) -> dict:
 
     import bayesmotion  # noqa: F401  (float64)
     from bayesmotion.datasets import load_handshakes
-    from bayesmotion.model import HGPDM, LogPosterior, fit_codecs, init_params, prepare_data
+    from bayesmotion.model.data import fit_codecs, prepare_data
+    from bayesmotion.model.fit import init_params
+    from bayesmotion.model.logpost import LogPosterior
+    from bayesmotion.model.spec import HGPDM
 
     rng = np.random.default_rng(0)
     A = rng.standard_normal((1000, 1000))

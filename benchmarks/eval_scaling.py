@@ -25,7 +25,9 @@ def value_and_grad_fn(N: int, dense: bool):
     from _common import synthetic_model_data
     from jax.flatten_util import ravel_pytree
 
-    from bayesmotion.model import HGPDM, LogPosterior, init_params
+    from bayesmotion.model.fit import init_params
+    from bayesmotion.model.logpost import LogPosterior
+    from bayesmotion.model.spec import HGPDM
 
     spec = HGPDM(interaction_factors=("couple", "emotion"),
                  dynamics_factors=("couple", "emotion"), root_mode="partner")

@@ -54,7 +54,8 @@ def eval_cost(spec, data) -> dict:
     from _common import block, timeit
     from jax.flatten_util import ravel_pytree
 
-    from bayesmotion.model import LogPosterior, init_params
+    from bayesmotion.model.fit import init_params
+    from bayesmotion.model.logpost import LogPosterior
 
     logp = LogPosterior(spec, data)
     x0, unravel = ravel_pytree({k: jnp.asarray(v) for k, v in init_params(spec, data).items()})
@@ -71,7 +72,8 @@ def fit_builtin(max_iter: int, cost_path: Path) -> dict:
     from _common import write_json
 
     from bayesmotion.datasets import load_handshakes
-    from bayesmotion.model import HGPDM, fit_codecs, prepare_data
+    from bayesmotion.model.data import fit_codecs, prepare_data
+    from bayesmotion.model.spec import HGPDM
 
     ds = load_handshakes()
     spec = HGPDM().resolved(ds)
@@ -102,7 +104,7 @@ def pad_channels(Y: np.ndarray, D: int, rng: np.random.Generator) -> np.ndarray:
 
 def taubert_fps(frames: int = TAUBERT["frames"]) -> float:
     """The lowest frame rate (0.5 fps steps) at which the shake window has ``frames`` frames."""
-    from bayesmotion.data.handshakes import WINDOW
+    from bayesmotion.datasets.handshakes import WINDOW
 
     for fps in np.arange(20.0, 240.0, 0.5):
         if round(WINDOW[0] * fps) + round(WINDOW[1] * fps) + 1 == frames:
@@ -112,7 +114,8 @@ def taubert_fps(frames: int = TAUBERT["frames"]) -> float:
 
 def taubert_data():
     from bayesmotion.datasets import load_handshakes
-    from bayesmotion.model import HGPDM, fit_codecs, prepare_data
+    from bayesmotion.model.data import fit_codecs, prepare_data
+    from bayesmotion.model.spec import HGPDM
 
     ds = load_handshakes(fps=taubert_fps(), window="shake").filter(couple=TAUBERT["couple"])
     spec = HGPDM().resolved(ds)
@@ -126,8 +129,9 @@ def taubert_data():
 def fit_taubert(max_iter: int, cost_path: Path) -> dict:
     from _common import write_json
 
-    from bayesmotion.model import LogPosterior, init_params
-    from bayesmotion.optim import map_optimize
+    from bayesmotion.model.fit import init_params
+    from bayesmotion.model.logpost import LogPosterior
+    from bayesmotion.optim.minimize import map_optimize
 
     spec, ds, data, d_real = taubert_data()
     cost = eval_cost(spec, data)

@@ -44,7 +44,7 @@ MODELS_QUICK = {"builtin": {}}
 
 def fit_model(max_iter: int, **dataset_kwargs):
     from bayesmotion.datasets import load_handshakes
-    from bayesmotion.model import HGPDM
+    from bayesmotion.model.spec import HGPDM
 
     ds = load_handshakes(**dataset_kwargs)
     return HGPDM().fit(ds, max_iter=max_iter, progress=False)
@@ -53,8 +53,8 @@ def fit_model(max_iter: int, **dataset_kwargs):
 def _inputs(model, T: int, emotion: str = "happy"):
     import jax.numpy as jnp
 
-    from bayesmotion.generate import _start_trial, resolve_style
-    from bayesmotion.predict import style_vectors
+    from bayesmotion.model.generate import _start_trial, resolve_style
+    from bayesmotion.model.predict import style_vectors
 
     values = {"emotion": emotion, "couple": model.levels["couple"][0]}
     coords = {f: resolve_style(model, f, values[f], T) for f in model.spec.factors}
@@ -74,14 +74,14 @@ def profile_parts(model, P, T: int, repeats: int) -> dict:
     import jax.numpy as jnp
     from _common import block, timeit
 
-    from bayesmotion.generate import (
+    from bayesmotion.model.generate import (
         _positions,
         _positions_with_var,
         decode_actor,
         dynamics_rollout,
         map_down,
     )
-    from bayesmotion.predict import condition
+    from bayesmotion.model.predict import condition
 
     r, I0, dyn_s, int_s = _inputs(model, T)
     o, A = model.spec.order, model.n_actors
@@ -116,8 +116,8 @@ def measure_model(model, T: int, repeats: int) -> dict:
     import jax
     from _common import block, timeit
 
-    from bayesmotion.generate import _map_and_decode, dynamics_rollout, generate
-    from bayesmotion.predict import condition, restrict_to_styles
+    from bayesmotion.model.generate import _map_and_decode, dynamics_rollout, generate
+    from bayesmotion.model.predict import condition, restrict_to_styles
 
     P = block(condition(model))
     r, I0, dyn_s, int_s = _inputs(model, T)

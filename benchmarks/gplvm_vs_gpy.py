@@ -53,7 +53,7 @@ def bayesmotion_call(X, Y):
     from _common import block
     from jax.flatten_util import ravel_pytree
 
-    from bayesmotion.layers import gplvm_loglik
+    from bayesmotion.gp.densities import gplvm_loglik
 
     gamma = np.array([HYPER["variance"], HYPER["lengthscale"] ** -2, 1 / HYPER["noise_variance"]])
     x0, unravel = ravel_pytree({"X": jnp.asarray(X), "log_gamma": jnp.log(gamma)})
@@ -76,8 +76,8 @@ def generic_call(X, Y):
     from _common import block
     from jax.flatten_util import ravel_pytree
 
-    from bayesmotion import kernels
-    from bayesmotion.layers import gaussian_loglik
+    from bayesmotion.gp import kernels
+    from bayesmotion.gp.densities import gaussian_loglik
 
     gamma = np.array([HYPER["variance"], HYPER["lengthscale"] ** -2, 1 / HYPER["noise_variance"]])
     x0, unravel = ravel_pytree({"X": jnp.asarray(X), "log_gamma": jnp.log(gamma)})
@@ -200,7 +200,7 @@ def gpy_equivalent_nll(X, Y) -> float:
     """bayesmotion's NLL with GPy's noise variance + 1e-8 (should equal GPy's to ~1e-12)."""
     import jax.numpy as jnp
 
-    from bayesmotion.layers import gplvm_loglik
+    from bayesmotion.gp.densities import gplvm_loglik
 
     gamma = jnp.array([HYPER["variance"], HYPER["lengthscale"] ** -2,
                        1 / (HYPER["noise_variance"] + 1e-8)])

@@ -43,10 +43,10 @@ MODES = ("vertices", "nearest")
 def run(quick: bool) -> dict:
     import numpy as np
 
+    from bayesmotion.app.demo import _split
     from bayesmotion.datasets import load_handshakes
-    from bayesmotion.demo import _split
-    from bayesmotion.infer import infer_emotion
-    from bayesmotion.model import HGPDM
+    from bayesmotion.emotion.infer import infer_emotion
+    from bayesmotion.model.spec import HGPDM
 
     cfg = QUICK if quick else FULL
     train, held = _split(load_handshakes(fps=cfg["fps"]))
@@ -102,7 +102,7 @@ def run(quick: bool) -> dict:
 def _interpolation(model, mode: str, s_values) -> dict:
     import numpy as np
 
-    from bayesmotion.infer import infer_emotion
+    from bayesmotion.emotion.infer import infer_emotion
 
     levels = list(model.levels["emotion"])
     out = {}

@@ -44,7 +44,7 @@ bulk ESS 295 / 602 / 1,312 / 2,129 / **2,783** at 400 / 1,000 / 2,000 / 3,000 / 
 (session 21's single t at 4,000: 1.090 and 387), max tau 47; worst coordinates
 style:couple[0, 0] and style:emotion[0, 0]. R-hat now falls about as 1/steps. Running that
 chain on failed: the fit is not bit-reproducible between runs (the layers' factorisations take
-more OpenBLAS threads when the other processes leave cores idle, ``bayesmotion._blas``), so the
+more OpenBLAS threads when the other processes leave cores idle, ``bayesmotion.gp.blas``), so the
 refit got another cache key and started a new chain. The fitted model is now cached beside the
 chain (``posterior_convergence_model_<max_iter>_<version>.npz``) and reused, so a longer run
 (``steps`` raised; the checkpoints past it are skipped) or one stopped by the suite's timeout
@@ -57,7 +57,7 @@ max R-hat 1.054 / 1.032 / 1.020 / 1.012 / 1.012 / **1.010** / **1.009** and min 
 style:emotion[0, 0]). 0.78 s per step over the last 4,758 steps, the test suite sharing the
 cores for 28 of their 62 minutes. The chain ran in three pieces resumed from its file; one was
 stopped when a progress check read the file while emcee wrote it (fixed since:
-``bayesmotion.chainfile``).
+``bayesmotion.inference.chainfile``).
 """
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ def demo_model(max_iter: int, cache: Path | None = None):
     to it, so the chain keyed on its parameters can be resumed (the fit is not
     bit-reproducible). An unreadable file is refitted and replaced."""
     from bayesmotion import HGPDM, load, load_handshakes
-    from bayesmotion.demo import _split
+    from bayesmotion.app.demo import _split
     from bayesmotion.errors import ModelFileError
 
     path = cache
@@ -128,13 +128,13 @@ def checkpoint(chain: np.ndarray, n: int, adapt: int = 0) -> dict:
     import arviz as az
     import emcee
 
-    from bayesmotion.posterior import _burn_thin
+    from bayesmotion.inference.posterior import burn_thin
 
     head = chain[:n]
     with warnings.catch_warnings():  # short heads are expected; steps_over_max_tau says so
         warnings.simplefilter("ignore")
         tau = emcee.autocorr.integrated_time(head, quiet=True)
-        info = _burn_thin(tau, n, None, 1, min_burn=min(adapt, n - 1))
+        info = burn_thin(tau, n, None, 1, min_burn=min(adapt, n - 1))
     kept = np.swapaxes(head[info["burn"]:], 0, 1)  # (walkers, draws, ndim)
     d = az.convert_to_dataset({"theta": kept})
     rhat = np.asarray(az.rhat(d)["theta"])
@@ -151,7 +151,8 @@ def run(quick: bool) -> dict:
     import emcee
     from _common import headline
 
-    from bayesmotion.posterior import _adapt_steps, sample_posterior
+    from bayesmotion.inference.proposals import adapt_steps
+    from bayesmotion.inference.sample import sample_posterior
 
     cfg = SETTINGS["quick" if quick else "full"]
     t0 = time.perf_counter()
@@ -162,7 +163,7 @@ def run(quick: bool) -> dict:
     resumed_from = (emcee.backends.HDFBackend(str(path), read_only=True).iteration
                     if path.exists() else 0)
     t0 = time.perf_counter()
-    adapt = _adapt_steps(cfg["steps"])
+    adapt = adapt_steps(cfg["steps"])
     post = sample_posterior(model, n_steps=cfg["steps"], seed=0, backend=str(path),
                             progress=False, burn=adapt, thin=1)
     sample_s = time.perf_counter() - t0

@@ -1,7 +1,7 @@
 """Effective samples per second: vectorised emcee vs a per-walker Python loop vs NUTS.
 
 Small model: the built-in handshakes with one repetition at 10 fps (8 trials of 17 frames,
-N = 136), MAP-fitted briefly. The sampled density is ``bayesmotion.posterior.Target``
+N = 136), MAP-fitted briefly. The sampled density is ``bayesmotion.inference.target``
 (hyperparameters + training style vectors, latents at the MAP).
 
 * ``emcee_vectorised``: ``sample_posterior(fitted, method="emcee")`` with its defaults: one
@@ -54,7 +54,7 @@ GAMMA_EVERY = 4  # sample_posterior's default
 
 def fit(n_repetitions: int, fps: float, max_iter: int):
     from bayesmotion.datasets import load_handshakes
-    from bayesmotion.model import HGPDM
+    from bayesmotion.model.spec import HGPDM
 
     ds = load_handshakes(fps=fps, n_repetitions=n_repetitions)
     return HGPDM().fit(ds, max_iter=max_iter, progress=False)
@@ -63,7 +63,7 @@ def fit(n_repetitions: int, fps: float, max_iter: int):
 def _ess(chains: np.ndarray, acceptance) -> dict:
     from types import SimpleNamespace
 
-    from bayesmotion.diagnostics import convergence
+    from bayesmotion.inference.diagnostics import convergence
 
     return convergence(SimpleNamespace(chains=chains, acceptance=np.asarray(acceptance)))
 
@@ -79,7 +79,7 @@ def _record(method, seconds, chains, acceptance, extra) -> dict:
 
 def run_vectorised(fitted, n_steps: int, factorise: bool = False, hmc: bool = False,
                    independence: bool | None = None) -> tuple[dict, object]:
-    from bayesmotion.posterior import sample_posterior
+    from bayesmotion.inference.sample import sample_posterior
 
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
@@ -106,14 +106,15 @@ def run_loop(post, n_steps: int) -> dict:
     target = post.target
     W, ndim = post.info["n_walkers"], target.ndim
     centre, _ = target.conditional_map(progress=False)
-    from bayesmotion.posterior import _default_moves, _start_points
+    from bayesmotion.inference.proposals import default_moves
+    from bayesmotion.inference.target import start_points
 
-    p0 = _start_points(target, centre, W, "laplace", 1e-3, np.random.default_rng(0))
+    p0 = start_points(target, centre, W, "laplace", 1e-3, np.random.default_rng(0))
 
     def log_prob(x):
         return float(target.logp(jnp.asarray(x)))
 
-    moves = _default_moves(target)  # DE followed by the style rotations, as in ``post``
+    moves = default_moves(target)  # DE followed by the style rotations, as in ``post``
     sampler = emcee.EnsembleSampler(W, ndim, log_prob, vectorize=False, moves=moves)
     state = emcee.State(p0, random_state=np.random.RandomState(0).get_state())
     t0 = time.perf_counter()
@@ -145,7 +146,7 @@ def run_nuts_child(fitted, n_steps: int, timeout: float) -> dict:
 
 
 def run_nuts(fitted, n_steps: int) -> dict:
-    from bayesmotion.posterior import sample_posterior
+    from bayesmotion.inference.sample import sample_posterior
 
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
@@ -165,8 +166,9 @@ def eval_costs(fitted, repeats: int) -> dict:
     import jax.numpy as jnp
     from _common import block, timeit
 
-    from bayesmotion.moves import EnsembleHMC
-    from bayesmotion.posterior import Target, _default_moves
+    from bayesmotion.inference.moves import EnsembleHMC
+    from bayesmotion.inference.proposals import default_moves
+    from bayesmotion.inference.target import Target
 
     def step_s(t, W):
         xs = jnp.asarray(t.x0 + 1e-3 * rng.standard_normal((W, t.ndim)))
@@ -187,7 +189,7 @@ def eval_costs(fitted, repeats: int) -> dict:
     # suggested alternative to vmap: walkers one after another inside one jitted call
     mapped = jax.jit(lambda xs: jax.lax.map(target._logp, xs))
     # hmc=True adds one EnsembleHMC step (mean 3 leapfrog steps) on the non-rotated block
-    hmc = next(m for m in _default_moves(target, hmc=True).moves if isinstance(m, EnsembleHMC))
+    hmc = next(m for m in default_moves(target, hmc=True).moves if isinstance(m, EnsembleHMC))
     hmc.n_leapfrog = (3, 3)
     fake = SimpleNamespace(random=np.random.RandomState(0))
     state = emcee.State(np.asarray(xs), log_prob=np.asarray(target.logp_batch(xs)))
@@ -288,6 +290,6 @@ if __name__ == "__main__":
     a = ap.parse_args()
     from _common import write_json
 
-    from bayesmotion.io import load
+    from bayesmotion.model.io import load
 
     write_json(Path(a.out), run_nuts(load(a.nuts), a.steps))

@@ -23,10 +23,10 @@ neutral clip to the emotional one, ``s ∈ {0, .25, .5, .75, 1}``, and extrapola
 
 Every output is scored (a) by the probability of the target emotion under the affective-feature
 logistic-regression classifier trained on the real walks of the *other* contents, and by
-``bayesmotion.infer.infer_emotion`` with the fitted H-GPDM where that exists; (b) by the Ho et
+``bayesmotion.emotion.infer`` with the fitted H-GPDM where that exists; (b) by the Ho et
 al. ranking function (trained on the other contents) as raw strength and normalised so the
 source pair's real neutral clip scores 0 and its real emotional clip 1; (c) by the naturalness
-proxies of :mod:`bayesmotion.naturalness` against all real walks at the same frame rate.
+proxies of :mod:`bayesmotion.evaluation.naturalness` against all real walks at the same frame rate.
 
 Per method and pair the summary gives the Spearman correlation of normalised strength with s
 over [0, 1], the fraction of increasing steps, the calibration error mean |strength(s) - s|,
@@ -66,13 +66,13 @@ from bayesmotion.baselines import (  # noqa: E402
     fourier_fit,
 )
 from bayesmotion.baselines.unuma import align_phase  # noqa: E402
-from bayesmotion.data.bandai import WALK_CONTENTS, load_bandai  # noqa: E402
 from bayesmotion.data.emotion import EmotionStyle  # noqa: E402
 from bayesmotion.data.motion import Motion, MotionDataset  # noqa: E402
+from bayesmotion.datasets.bandai import WALK_CONTENTS, load_bandai  # noqa: E402
 from bayesmotion.errors import BayesmotionError  # noqa: E402
+from bayesmotion.evaluation.naturalness import NaturalnessReference, naturalness  # noqa: E402
 from bayesmotion.features import clip_features  # noqa: E402
-from bayesmotion.model import HGPDM  # noqa: E402
-from bayesmotion.naturalness import NaturalnessReference, naturalness  # noqa: E402
+from bayesmotion.model.spec import HGPDM  # noqa: E402
 
 NAME = "study_interpolation"
 DATA_ROOT = HERE.parent.parent / "shared" / "data" / "bandai-emotion"
@@ -239,7 +239,7 @@ class Scorers:
 
 def _infer_emotion():
     try:
-        from bayesmotion.infer import infer_emotion
+        from bayesmotion.emotion.infer import infer_emotion
     except ImportError:
         return None
     return infer_emotion

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 import bayesmotion as bm
-from bayesmotion.clip import clip_poses
-from bayesmotion.data.affective_codec import AffectiveCodec
-from bayesmotion.data.bandai import load_bandai
+from bayesmotion.codecs.affective import AffectiveCodec
+from bayesmotion.datasets.bandai import load_bandai
+from bayesmotion.emotion.clip import clip_poses
 from bayesmotion.errors import BayesmotionError, ModelFileError
 from bayesmotion.features.pose import POSE_FEATURE_NAMES, affective_features
 
@@ -116,7 +116,7 @@ def test_cli_names_what_an_affective_model_cannot_do(capsys, affective_model, tm
 
 
 def test_model_files_before_pose_spaces_load_as_joint_angle_models(tiny_model, tmp_path):
-    from bayesmotion.data.representation import PoseCodec
+    from bayesmotion.codecs.pose import PoseCodec
 
     good = tmp_path / "angles.npz"
     tiny_model.save(good)

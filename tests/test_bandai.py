@@ -4,8 +4,8 @@ real dataset (skipped when ../shared/data is absent)."""
 import numpy as np
 import pytest
 
-from bayesmotion.data.bandai import EMOTION_ORDER, WALK_CONTENTS, bandai_files, load_bandai
 from bayesmotion.data.bvh import read_bvh
+from bayesmotion.datasets.bandai import EMOTION_ORDER, WALK_CONTENTS, bandai_files, load_bandai
 from bayesmotion.errors import BayesmotionError
 
 TINY = """HIERARCHY

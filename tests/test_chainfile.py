@@ -11,10 +11,11 @@ import h5py
 import numpy as np
 import pytest
 
-from bayesmotion import chainfile
-from bayesmotion.chainfile import ChainFile, open_h5
 from bayesmotion.errors import BayesmotionError
-from bayesmotion.posterior import ChainTooShortWarning, _run_emcee
+from bayesmotion.inference import chainfile
+from bayesmotion.inference.chainfile import ChainFile, open_h5
+from bayesmotion.inference.emcee_runner import run_emcee
+from bayesmotion.inference.posterior import ChainTooShortWarning
 
 from .test_posterior import GaussianTarget
 
@@ -50,7 +51,7 @@ def run(h5, n_steps):
     for its autocorrelation time, which the warning says)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
-        return _run_emcee(GaussianTarget(MU, SD), MU, n_walkers=8, n_steps=n_steps, burn=0,
+        return run_emcee(GaussianTarget(MU, SD), MU, n_walkers=8, n_steps=n_steps, burn=0,
                           thin=1, seed=3, backend=h5, progress=False, init="ball", ball=1e-2,
                           moves=None)
 

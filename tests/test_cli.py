@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from bayesmotion.cli import main
+from bayesmotion.app.cli import main
 
 
 def run(*args):
@@ -126,7 +126,7 @@ def test_demo_quick_writes_every_file(tmp_path):
 
 
 def test_sample_passes_its_sampler_flags(tmp_path, tiny_model, monkeypatch):
-    import bayesmotion.posterior as posterior
+    import bayesmotion.app.cli as cli
 
     seen = {}
 
@@ -134,7 +134,7 @@ def test_sample_passes_its_sampler_flags(tmp_path, tiny_model, monkeypatch):
         seen.update(kw)
         raise RuntimeError("stop")  # stop before sampling: only the arguments are checked
 
-    monkeypatch.setattr(posterior, "sample_posterior", fake)
+    monkeypatch.setattr(cli, "sample_posterior", fake)
     model = tmp_path / "m.npz"
     tiny_model.save(model)
     for flags, want in (([], (False, False, None)), (["--hmc"], (True, False, None)),

@@ -7,15 +7,16 @@ import io
 import numpy as np
 import pytest
 
+from bayesmotion.codecs.pose import PoseCodec, fold_ancestor_translation
 from bayesmotion.data import Motion, MotionDataset, Skeleton, Trial
-from bayesmotion.data.bandai import load_bandai
 from bayesmotion.data.mirror import mirror, mirror_plan
-from bayesmotion.data.representation import PoseCodec, fold_ancestor_translation
+from bayesmotion.datasets.bandai import load_bandai
+from bayesmotion.emotion.infer import infer_emotion
 from bayesmotion.errors import BayesmotionError, ModelFileError
-from bayesmotion.generate import generate
-from bayesmotion.infer import infer_emotion
-from bayesmotion.io import load
-from bayesmotion.model import HGPDM, fit_codecs
+from bayesmotion.model.data import fit_codecs
+from bayesmotion.model.generate import generate
+from bayesmotion.model.io import load
+from bayesmotion.model.spec import HGPDM
 from tests.test_mirror import ROOT6, ROT3, _half_turned_skeleton, _random_motion
 
 WALKS = ("walk", "walk-back", "walk-left", "walk-right")
@@ -259,7 +260,7 @@ def test_bandai_walks_encode_without_outlier_channels(bandai_root):
 
 @pytest.mark.slow
 def test_cli_fit_stores_the_rig_steps(tmp_path):
-    from bayesmotion.cli import main
+    from bayesmotion.app.cli import main
     from bayesmotion.data import write_bvh
 
     _, clips = _walks()

@@ -55,7 +55,7 @@ def test_bandai_walks_one_actor_fit_converges(bandai_root):
     assert (tail[0] - tail[-1]) < 0.01 * (d["initial_objective"] - d["objective"])
     # generation in the default "heading" root mode: the rollout walks (the root travels at the
     # pace of the real clip, within a factor of 3) and its position variance is finite
-    from bayesmotion.data.representation import find_mover
+    from bayesmotion.data.motion import find_mover
 
     assert m.codecs[0].root_mode == "heading"
     k = next(i for i, t in enumerate(walks) if t.labels["emotion"] == "happy"

@@ -92,7 +92,7 @@ def test_mean_rollout_reproduces_training_trial_and_stays_alive(handshake_model,
 @pytest.mark.slow
 def test_generated_handshakes_bring_the_hands_together(handshake_model):
     real = bm.load_cmu_handshake()
-    from bayesmotion.data.handshakes import hand_distance
+    from bayesmotion.datasets.handshakes import hand_distance
 
     d_real = hand_distance(real).min()
     for e in handshake_model.levels["emotion"]:
@@ -108,7 +108,7 @@ def test_mean_rollout_variance_equals_the_per_step_predictive(tiny_model):
     equal each step's predictive variance at the lags it actually used."""
     import jax.numpy as jnp
 
-    from bayesmotion.predict import noise_variances, predict_dynamics
+    from bayesmotion.model.predict import noise_variances, predict_dynamics
 
     r = tiny_model.generate(emotion="sad", n_frames=25)
     P, o = tiny_model.predictor(), tiny_model.spec.order
@@ -126,8 +126,8 @@ def test_sampled_rollouts_map_down_by_the_same_means(tiny_model):
     variances); those means must be the ones ``map_down`` gives with its variances."""
     import jax.numpy as jnp
 
-    from bayesmotion.generate import map_down, map_down_mean
-    from bayesmotion.predict import style_vectors
+    from bayesmotion.model.generate import map_down, map_down_mean
+    from bayesmotion.model.predict import style_vectors
 
     r = tiny_model.generate(emotion="happy", n_frames=30, n_samples=2, seed=3)
     P, A = tiny_model.predictor(), tiny_model.n_actors
@@ -155,7 +155,7 @@ def test_the_predictor_is_conditioned_once_per_model(tiny_model):
 def test_interval_coverage_counts_per_horizon():
     """Hand-built case: 10 fps, 2 observed frames, errors of 0.5 sd in the first second and
     3 sd afterwards -> inside both intervals in the first second, inside neither later."""
-    from bayesmotion.evaluate import interval_coverage
+    from bayesmotion.evaluation.evaluate import interval_coverage
 
     T = 32
     mean = np.zeros((2, T, 3, 3))
@@ -180,8 +180,8 @@ def test_mean_only_path_gives_the_mean_rollout_of_the_full_path(tiny_model):
     import jax
     import jax.numpy as jnp
 
-    from bayesmotion.generate import _map_and_decode, dynamics_rollout
-    from bayesmotion.predict import style_vectors
+    from bayesmotion.model.generate import _map_and_decode, dynamics_rollout
+    from bayesmotion.model.predict import style_vectors
 
     r = tiny_model.generate(emotion="sad", n_frames=25)
     P, o = tiny_model.predictor(), tiny_model.spec.order
@@ -220,7 +220,7 @@ def test_unknown_style_factors_and_untrained_levels_are_refused(tiny_model):
 
 
 def test_transition_weights_at_the_window_edges(tiny_model):
-    from bayesmotion.generate import Transition, resolve_style
+    from bayesmotion.model.generate import Transition, resolve_style
 
     w = resolve_style(tiny_model, "emotion", Transition("happy", "sad", 3, 4), 10)[:, 1]
     np.testing.assert_allclose(w[:4], 0.0)  # up to and including frame start
@@ -234,7 +234,7 @@ def test_transition_weights_at_the_window_edges(tiny_model):
 
 def _predictions(P, rng, styles):
     """Dynamics and interaction predictive means and variances at random inputs."""
-    from bayesmotion import predict
+    from bayesmotion.model import predict
 
     o, _, q = P.dyn_lags.shape
     lags = rng.normal(size=(o, 7, q))
@@ -247,7 +247,8 @@ def _predictions(P, rng, styles):
 def test_blocked_conditioning_predicts_what_the_dense_one_does(tiny_model, which):
     """With one-hot training styles the style layers are conditioned cell by cell; every
     prediction (one-hot, mixed and extrapolated styles) must equal the dense conditioning's."""
-    from bayesmotion import HGPDM, predict
+    from bayesmotion import HGPDM
+    from bayesmotion.model import predict
 
     from .conftest import make_tiny_dataset
 
@@ -276,7 +277,7 @@ def test_blocked_conditioning_predicts_what_the_dense_one_does(tiny_model, which
 def test_restricting_to_the_cells_a_style_sees_changes_no_prediction(tiny_model, emotion):
     """restrict_to_styles drops the cells whose style factor is exactly 0 for every new input:
     one-hot styles keep one cell, a mixture keeps both; predictions equal the full ones."""
-    from bayesmotion import predict
+    from bayesmotion.model import predict
 
     P = tiny_model.predictor()
     styles = [[1.0], emotion]
@@ -296,7 +297,7 @@ def test_restricting_to_the_cells_a_style_sees_changes_no_prediction(tiny_model,
 def test_generate_with_restricted_cells_equals_the_full_predictor(tiny_model, monkeypatch):
     """The public rollout (mean, every variance, sampled rollouts) is the same with and without
     the cell restriction, for a transition between the two emotions and for one emotion."""
-    import bayesmotion.generate as G
+    import bayesmotion.model.generate as G
 
     for emotion in ("sad", G.Transition("happy", "sad", 4, 5)):
         got = tiny_model.generate(emotion=emotion, n_frames=14, n_samples=3)
@@ -313,7 +314,8 @@ def test_generate_with_restricted_cells_equals_the_full_predictor(tiny_model, mo
 
 def test_learned_style_vectors_keep_the_dense_conditioning():
     """Learned (non one-hot) style vectors couple the cells: no block structure to use."""
-    from bayesmotion import HGPDM, predict
+    from bayesmotion import HGPDM
+    from bayesmotion.model import predict
 
     from .conftest import make_tiny_dataset
 
@@ -324,7 +326,7 @@ def test_learned_style_vectors_keep_the_dense_conditioning():
 
 
 def test_the_rollout_mean_step_equals_the_dynamics_predictive_mean(tiny_model):
-    from bayesmotion import predict
+    from bayesmotion.model import predict
 
     P = tiny_model.predictor()
     rng = np.random.default_rng(5)
@@ -340,7 +342,7 @@ def test_the_rollout_mean_step_equals_the_dynamics_predictive_mean(tiny_model):
 
 @pytest.mark.parametrize("n", [50, 257, 300])
 def test_packed_lower_triangular_products_equal_the_dense_product(n):
-    from bayesmotion import predict
+    from bayesmotion.model import predict
 
     rng = np.random.default_rng(n)
     L = np.tril(rng.normal(size=(n, n)))

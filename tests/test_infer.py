@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import bayesmotion as bm
+from bayesmotion.emotion.clip import clip_poses
 from bayesmotion.errors import SkeletonMismatchError
 
 from .conftest import make_tiny_dataset
@@ -44,7 +45,7 @@ def test_online_inference_sharpens_on_held_out_trials(tiny_data):
     as frames arrive. The label entropy is 0 from the first prefix here (overconfident), so the
     coordinates' differential entropy is the measure; it fell in every one of the 6 held-out
     trials when this test was written (by 0.26-0.66 nats from 3 to 9 frames)."""
-    from bayesmotion.evaluate import online_sharpening
+    from bayesmotion.evaluation.evaluate import online_sharpening
 
     drops = []
     for held in (0, 4):  # one happy, one sad trial
@@ -96,7 +97,7 @@ def test_given_styles_are_checked(tiny_model, tiny_data):
 
 
 def test_style_setup_fixes_given_factors_and_infers_the_rest(handshake_model):
-    from bayesmotion.infer import _style_setup
+    from bayesmotion.emotion.infer import _style_setup
 
     fixed, conc, inferred = _style_setup(handshake_model, {"couple": "c2"}, None)
     assert inferred == ["emotion"]
@@ -120,7 +121,7 @@ def test_unknown_couple_is_inferred_with_the_emotion(handshake_model, handshake_
 
 
 def _posterior_from(samples):
-    from bayesmotion.infer import EmotionPosterior
+    from bayesmotion.emotion.result import EmotionPosterior
 
     s = np.asarray(samples)[None]
     return EmotionPosterior(("a", "b", "c"), s, {}, np.zeros(s.shape[:2]))
@@ -169,16 +170,17 @@ def _check_expansion(m, trial, given, seed=3):
     """The expanded density (one O(N^2) precomputation per clip) is the clip log-density."""
     import jax.numpy as jnp
 
-    from bayesmotion.clip import clip_poses
-    from bayesmotion.infer import _init_latents, _style_setup
-    from bayesmotion.infer_density import (
+    from bayesmotion.emotion.clip import clip_poses
+    from bayesmotion.emotion.density import (
         clip_log_density,
         expanded_log_density,
         expanded_log_likelihood,
         style_expansion,
         style_log_prior,
     )
-    from bayesmotion.params import style_to_simplex
+    from bayesmotion.emotion.infer import _style_setup
+    from bayesmotion.emotion.projection import init_latents
+    from bayesmotion.model.params import style_to_simplex
 
     Ys = clip_poses(m, trial)
     T, B = Ys[0].shape[0], 32
@@ -187,7 +189,7 @@ def _check_expansion(m, trial, given, seed=3):
     P = m.predictor()
     fixed, conc, inferred = _style_setup(m, given, None)
     fixed = {f: np.asarray(v) @ np.asarray(P.level_vectors[f]) for f, v in fixed.items()}
-    X, I, _ = _init_latents(m, Ys, B)
+    X, I, _ = init_latents(m, Ys, B)
     rng = np.random.default_rng(seed)
     lat = {"X": jnp.asarray(X + 0.1 * rng.standard_normal(X.shape)),
            "I": jnp.asarray(I + 0.1 * rng.standard_normal(I.shape))}
@@ -236,7 +238,7 @@ def test_learned_style_vectors_are_what_labels_mean(learned_style_model, tiny_da
     """With learned style vectors, a label given to generation or inference stands for its
     learned vector (not the one-hot coordinates), and inference's coordinates are weights over
     the levels' vectors -- the expansion must agree with the direct density there too."""
-    from bayesmotion.predict import style_vectors
+    from bayesmotion.model.predict import style_vectors
 
     m = learned_style_model
     P = m.predictor()
@@ -254,7 +256,7 @@ def test_learned_style_vectors_are_what_labels_mean(learned_style_model, tiny_da
     import jax
     import jax.numpy as jnp
 
-    from bayesmotion.generate import dynamics_rollout
+    from bayesmotion.model.generate import dynamics_rollout
 
     o = m.spec.order
     I0 = jnp.asarray(roll.I[:o])
@@ -274,7 +276,7 @@ def test_tempered_posterior_is_wider_and_checked(tiny_model, tiny_data):
     trial = tiny_data[tiny_data.labels("emotion").index("happy")]
     import jax.numpy as jnp
 
-    from bayesmotion.params import simplex_to_style, style_log_jacobian
+    from bayesmotion.model.params import simplex_to_style, style_log_jacobian
 
     sd = {}
     for eta in (1.0, 0.05):
@@ -307,8 +309,8 @@ def test_emotion_starts_levels_explains_the_clip_as_each_emotion(tiny_model, tin
     and keeps the best optimum: never worse than the single start, which it reproduces."""
     import jax.numpy as jnp
 
-    from bayesmotion.infer import _starts
-    from bayesmotion.params import style_to_simplex
+    from bayesmotion.emotion.projection import projection_starts
+    from bayesmotion.model.params import style_to_simplex
 
     trial = tiny_data[tiny_data.labels("emotion").index("happy")]
     one = bm.infer_emotion(tiny_model, trial, n_steps=60, latent_uncertainty=False,
@@ -322,9 +324,9 @@ def test_emotion_starts_levels_explains_the_clip_as_each_emotion(tiny_model, tin
     assert many.info["map_objective"] == min(many.info["start_objectives"])
     assert many.info["emotion_starts"] == "levels"
 
-    Ys = [np.asarray(m) for m in bm.infer.clip_poses(tiny_model, trial)]
+    Ys = [np.asarray(m) for m in clip_poses(tiny_model, trial)]
     T = Ys[0].shape[0]
-    starts = _starts(tiny_model, Ys, T, ["emotion"], {"emotion": np.ones(K)}, "levels")
+    starts = projection_starts(tiny_model, Ys, T, ["emotion"], {"emotion": np.ones(K)}, "levels")
     level = np.argmax(tiny_model.data.onehot["emotion"], 1)[tiny_model.data.trial_of_frame]
     I_train = np.asarray(tiny_model.params["I"])
     for k, p in enumerate(starts[1:]):
@@ -343,7 +345,7 @@ def test_highest_density_region_is_calibrated_on_a_known_posterior():
     import jax.numpy as jnp
     import numpyro.distributions as dist
 
-    from bayesmotion.infer import EmotionPosterior
+    from bayesmotion.emotion.result import EmotionPosterior
 
     rng = np.random.default_rng(4)
 
@@ -392,7 +394,7 @@ def test_calibrated_power_covers_overconfident_gaussian_posteriors():
     and at eta the q-ellipsoids (covariance Sigma / eta) hold a fraction q of the truths."""
     from scipy.stats import chi2
 
-    from bayesmotion.evaluate import calibrate_likelihood_power
+    from bayesmotion.evaluation.evaluate import calibrate_likelihood_power
 
     rng = np.random.default_rng(3)
     dim, n = 3, 20_000
@@ -446,7 +448,7 @@ def test_tempered_hpd_levels_match_direct_sampling_of_a_dirichlet():
     Dirichlet(1 + eta (a - 1)): the importance-sampled level of a point equals the mass of that
     Dirichlet above the point's density, estimated here by sampling it directly."""
 
-    from bayesmotion.evaluate import tempered_hpd_levels, uniform_simplex_points
+    from bayesmotion.evaluation.evaluate import tempered_hpd_levels, uniform_simplex_points
 
     rng = np.random.default_rng(3)
     a = np.array([9.0, 4.0, 2.0, 6.0])
@@ -465,7 +467,7 @@ def test_tempering_proposal_resolves_posteriors_the_uniform_points_cannot():
     ladder proposal around the posterior mean gives the level that direct sampling gives, and
     still agrees with the uniform points on a wide posterior."""
 
-    from bayesmotion.evaluate import (
+    from bayesmotion.evaluation.evaluate import (
         tempered_hpd_levels,
         tempering_proposal,
         uniform_simplex_points,
@@ -499,7 +501,7 @@ def test_tempered_hpd_levels_refuse_posteriors_sharper_than_the_points():
     shape): at large powers the tempered posterior is far narrower than the uniform points'
     spacing and the importance-sampled level would read 0 (covered); it is NaN instead, so no
     calibration can pick such a power. Wide posteriors keep their finite levels."""
-    from bayesmotion.evaluate import (
+    from bayesmotion.evaluation.evaluate import (
         calibrate_hpd_power,
         tempered_hpd_levels,
         uniform_simplex_points,
@@ -525,7 +527,7 @@ def test_hpd_power_calibration_recovers_an_overconfidence_factor():
     """Clip likelihoods c times too sharp (truths drawn from Dirichlet(a_j), likelihood
     c sum (a_j - 1) log s): the calibrated power is about 1/c, and the regions it gives hold
     about q of new truths; a likelihood that no power can make cover is refused."""
-    from bayesmotion.evaluate import (
+    from bayesmotion.evaluation.evaluate import (
         calibrate_hpd_power,
         tempered_hpd_levels,
         uniform_simplex_points,
@@ -551,7 +553,7 @@ def test_hpd_power_calibration_recovers_an_overconfidence_factor():
     with pytest.raises(bm.BayesmotionError, match="no likelihood power"):
         calibrate_hpd_power(np.tile(tilt, (5, 1)), np.full(5, -50.0), q)
     # the harness reports the most any power reaches instead of a calibration
-    from bayesmotion.evaluate import _calibrated
+    from bayesmotion.evaluation.evaluate import _calibrated
 
     Ut = uniform_simplex_points(3, 2048, seed=3)
     runs = [(None, None, None, np.eye(3)[0],
@@ -570,8 +572,8 @@ def test_hpd_power_calibration_recovers_an_overconfidence_factor():
 @pytest.mark.slow
 def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
     """Each held-out trial's eta comes from the other trials' plain posteriors only."""
-    from bayesmotion import evaluate
-    from bayesmotion.evaluate import calibrate_likelihood_power, leave_one_out
+    from bayesmotion.evaluation import evaluate
+    from bayesmotion.evaluation.evaluate import calibrate_likelihood_power, leave_one_out
 
     calls = []
 
@@ -639,12 +641,12 @@ def test_leave_one_out_fails_on_unreadable_baseline_features_before_any_fit(tiny
                                                                              monkeypatch):
     """A skeleton the affective features cannot read must fail at once (it used to fail after
     every fold's refit and inference, losing them)."""
-    from bayesmotion import evaluate
+    from bayesmotion.evaluation import evaluate
 
     def no_fit(*a, **k):
         raise AssertionError("fitted before the baselines were checked")
 
-    monkeypatch.setattr("bayesmotion.model.HGPDM.fit", no_fit)
+    monkeypatch.setattr("bayesmotion.model.spec.HGPDM.fit", no_fit)
 
     def unreadable(*a, **k):
         raise bm.BayesmotionError("no shipped JointMap fits this skeleton")
@@ -657,7 +659,7 @@ def test_leave_one_out_fails_on_unreadable_baseline_features_before_any_fit(tiny
 def test_credible_regions_of_degenerate_posteriors_and_off_simplex_points():
     """Identical samples made the Mahalanobis distance 0 everywhere (every point 'inside');
     points off the simplex and levels outside (0, 1) were accepted."""
-    from bayesmotion.infer import EmotionPosterior
+    from bayesmotion.emotion.result import EmotionPosterior
 
     s = np.broadcast_to(np.array([0.9, 0.1]), (2, 50, 2)).copy()
     ep = EmotionPosterior(("a", "b"), s, {}, np.zeros(s.shape[:2]))

@@ -8,7 +8,9 @@ from jax.test_util import check_grads
 from scipy.stats import multivariate_normal
 
 import bayesmotion  # noqa: F401  (float64)
-from bayesmotion import _blas, kernels, layers, linalg
+from bayesmotion.gp import blas as _blas
+from bayesmotion.gp import densities, kernels, linalg
+from bayesmotion.model import layers
 
 
 def dense_loglik(K, Y):
@@ -48,7 +50,7 @@ def test_gplvm_loglik_matches_scipy(rng):
     X, Y = rng.normal(size=(15, 2)), rng.normal(size=(15, 4))
     gamma = jnp.array([1.3, 0.7, 20.0])
     K = rbf_loop(X, X, 1.3, 0.7) + np.eye(15) / 20.0
-    np.testing.assert_allclose(float(layers.gplvm_loglik(X, Y, gamma)), dense_loglik(K, Y),
+    np.testing.assert_allclose(float(densities.gplvm_loglik(X, Y, gamma)), dense_loglik(K, Y),
                                rtol=1e-8)
 
 
@@ -127,7 +129,7 @@ def test_dynamics_diag_matches_kernel(rng):
 
 def test_layer_gradients_match_finite_differences(rng):
     X, Y = rng.normal(size=(10, 2)), rng.normal(size=(10, 3))
-    check_grads(lambda X, g: layers.gplvm_loglik(X, Y, jnp.exp(g)), (X, jnp.log(jnp.array(
+    check_grads(lambda X, g: densities.gplvm_loglik(X, Y, jnp.exp(g)), (X, jnp.log(jnp.array(
         [1.0, 0.5, 10.0]))), order=1, modes=["rev"], atol=1e-5, rtol=1e-5)
     style = [rng.dirichlet(np.ones(2), size=10)]
     index = layers.DynamicsIndex([5, 5], 2)
@@ -139,14 +141,14 @@ def test_layer_gradients_match_finite_differences(rng):
 def test_jit_equals_eager(rng):
     X, Y = rng.normal(size=(10, 2)), rng.normal(size=(10, 3))
     g = jnp.array([1.0, 0.5, 10.0])
-    eager = layers.gplvm_loglik(X, Y, g)
-    jitted = jax.jit(layers.gplvm_loglik)(X, Y, g)
+    eager = densities.gplvm_loglik(X, Y, g)
+    jitted = jax.jit(densities.gplvm_loglik)(X, Y, g)
     np.testing.assert_allclose(float(eager), float(jitted), rtol=1e-13)
 
 
 def test_non_positive_definite_gives_minus_inf_not_nan():
     K = -jnp.eye(4)
-    val = layers.gaussian_loglik(K, jnp.ones((4, 2)))
+    val = densities.gaussian_loglik(K, jnp.ones((4, 2)))
     assert val == -jnp.inf
 
 
@@ -226,7 +228,7 @@ def test_layer_gradient_at_lapack_size_equals_dense_reference(rng):
     X, Y = rng.normal(size=(n, 3)), rng.normal(size=(n, D))
     g = jnp.array([1.3, 0.8, 30.0])
     K = np.asarray(kernels.bottom_kernel(X, X, g)) + np.eye(n) / 30.0
-    v, dK = jax.value_and_grad(layers.gaussian_loglik)(jnp.asarray(K), jnp.asarray(Y))
+    v, dK = jax.value_and_grad(densities.gaussian_loglik)(jnp.asarray(K), jnp.asarray(Y))
     np.testing.assert_allclose(float(v), dense_loglik(K, Y), rtol=1e-10)
     Kinv = np.linalg.inv(K)
     alpha = Kinv @ Y
@@ -239,11 +241,11 @@ def test_layer_gradient_at_lapack_size_equals_dense_reference(rng):
         return -0.5 * jnp.sum(z**2) - D * jnp.sum(jnp.log(jnp.diag(L))) - 0.5 * n * D * np.log(
             2 * np.pi)
 
-    grads = jax.jit(jax.grad(layers.gplvm_loglik, argnums=(0, 2)))(jnp.asarray(X), Y, g)
+    grads = jax.jit(jax.grad(densities.gplvm_loglik, argnums=(0, 2)))(jnp.asarray(X), Y, g)
     for a, b in zip(grads, jax.grad(reference, argnums=(0, 1))(jnp.asarray(X), g), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-8, atol=1e-9 * float(jnp.max(jnp.abs(b))))
     bad = jnp.array([1.0, 0.5, -0.5])
-    v, grads = jax.value_and_grad(layers.gplvm_loglik, argnums=(0, 2))(X, Y, bad)
+    v, grads = jax.value_and_grad(densities.gplvm_loglik, argnums=(0, 2))(X, Y, bad)
     assert v == -jnp.inf and all(np.all(np.asarray(d) == 0) for d in grads)
 
 
@@ -255,12 +257,12 @@ def test_hand_written_gplvm_gradient_equals_autodiff_of_generic_layer(rng, jitte
     g = jnp.array([1.3, 0.8, 30.0])
 
     def generic(X, Y, g, j):
-        return layers.gaussian_loglik(kernels.bottom_kernel(X, X, g) + jnp.eye(len(X)) / g[2],
+        return densities.gaussian_loglik(kernels.bottom_kernel(X, X, g) + jnp.eye(len(X)) / g[2],
                                       Y, j)
 
     args = (jnp.asarray(X), jnp.asarray(Y), g, jnp.asarray(jitter))
     v_ref, g_ref = jax.value_and_grad(generic, argnums=(0, 1, 2, 3))(*args)
-    v, grads = jax.jit(jax.value_and_grad(layers.gplvm_loglik, argnums=(0, 1, 2, 3)))(*args)
+    v, grads = jax.jit(jax.value_and_grad(densities.gplvm_loglik, argnums=(0, 1, 2, 3)))(*args)
     np.testing.assert_allclose(float(v), float(v_ref), rtol=1e-11)
     for a, b in zip(grads, g_ref, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-8, atol=1e-9 * float(jnp.max(jnp.abs(b))))
@@ -269,21 +271,21 @@ def test_hand_written_gplvm_gradient_equals_autodiff_of_generic_layer(rng, jitte
 def test_outside_support_is_minus_inf_with_zero_gradient(rng):
     X, Y = rng.normal(size=(6, 2)), rng.normal(size=(6, 2))
     g = jnp.array([1.0, 0.5, -0.5])  # noise variance -2: K is not positive definite
-    v, grads = jax.value_and_grad(layers.gplvm_loglik, argnums=(0, 1, 2))(X, Y, g)
+    v, grads = jax.value_and_grad(densities.gplvm_loglik, argnums=(0, 1, 2))(X, Y, g)
     assert v == -jnp.inf
     assert all(np.all(np.asarray(d) == 0) for d in grads)
     # an outer function whose own derivative is NaN there (logsumexp of -inf terms) must still
     # get zeros, not NaN, from both hand-written VJPs
     outer = lambda f: lambda *a: jax.nn.logsumexp(jnp.stack([f(*a)] * 2))
-    for d in jax.grad(outer(layers.gplvm_loglik), argnums=(0, 1, 2))(X, Y, g):
+    for d in jax.grad(outer(densities.gplvm_loglik), argnums=(0, 1, 2))(X, Y, g):
         assert np.all(np.asarray(d) == 0)
-    dK = jax.grad(outer(layers.gaussian_loglik))(-jnp.eye(4), jnp.ones((4, 2)))
+    dK = jax.grad(outer(densities.gaussian_loglik))(-jnp.eye(4), jnp.ones((4, 2)))
     assert np.all(np.asarray(dK) == 0)
 
 
 def test_gplvm_gradient_is_finite_when_the_variance_underflows(rng):
     X, Y = rng.normal(size=(8, 2)), rng.normal(size=(8, 3))
-    grad = jax.grad(lambda lg: layers.gplvm_loglik(X, Y, jnp.exp(lg)))(jnp.array([-800., 0., 3.]))
+    grad = jax.grad(lambda lg: densities.gplvm_loglik(X, Y, jnp.exp(lg)))(jnp.array([-800., 0., 3.]))
     assert np.all(np.isfinite(np.asarray(grad)))
 
 
@@ -297,8 +299,8 @@ def test_value_under_differentiation_equals_the_triangular_solve_value(rng):
     # white outputs, and outputs drawn from the GP itself (Y = L z: the quadratic form then
     # runs along K's small eigenvalues, where forming K^-1 loses most)
     for Y in (rng.normal(size=(300, 4)), np.linalg.cholesky(K) @ rng.normal(size=(300, 4))):
-        plain = float(layers.gplvm_loglik(X, Y, g))
-        with_grad = float(jax.value_and_grad(layers.gplvm_loglik)(X, Y, g)[0])
-        generic = float(jax.value_and_grad(layers.gaussian_loglik)(jnp.asarray(K), Y)[0])
+        plain = float(densities.gplvm_loglik(X, Y, g))
+        with_grad = float(jax.value_and_grad(densities.gplvm_loglik)(X, Y, g)[0])
+        generic = float(jax.value_and_grad(densities.gaussian_loglik)(jnp.asarray(K), Y)[0])
         np.testing.assert_allclose(with_grad, plain, rtol=1e-9)
         np.testing.assert_allclose(generic, plain, rtol=1e-9)

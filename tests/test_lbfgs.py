@@ -1,4 +1,4 @@
-"""The pure-JAX L-BFGS (bayesmotion.lbfgs) against known minima and scipy's L-BFGS-B."""
+"""The pure-JAX L-BFGS (bayesmotion.optim.lbfgs) against known minima and scipy's L-BFGS-B."""
 
 import jax
 import jax.numpy as jnp
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from bayesmotion import lbfgs
+from bayesmotion.optim import lbfgs
 
 
 def rosenbrock(x):

@@ -7,8 +7,8 @@ import pytest
 
 import bayesmotion as bm
 from bayesmotion.data.bvh import write_bvh
+from bayesmotion.datasets.loaders import load_data
 from bayesmotion.errors import BayesmotionError
-from bayesmotion.loaders import load_data
 
 
 def _folder(tmp_path, rows, rates=None):

@@ -8,11 +8,9 @@ from scipy.spatial.transform import Rotation
 
 import bayesmotion as bm
 from bayesmotion.data import Motion, Skeleton
-from bayesmotion.data.bandai import load_bandai
 from bayesmotion.data.fk import euler_matrices
 from bayesmotion.data.mirror import (
     _euler_tracks,
-    _world_and_local,
     canonical_side,
     lateral_ratio,
     mirror,
@@ -20,7 +18,9 @@ from bayesmotion.data.mirror import (
     mirror_plan,
     reframe,
     rest_frames,
+    world_and_local,
 )
+from bayesmotion.datasets.bandai import load_bandai
 from bayesmotion.errors import BayesmotionError
 
 ROOT6 = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
@@ -163,7 +163,7 @@ def test_real_walks_to_the_right_are_the_ones_mirrored(bandai_root):
 
 
 def _mean_local_rotations(motions) -> np.ndarray:
-    L = np.concatenate([_world_and_local(m.skeleton, m.values)[1] for m in motions])
+    L = np.concatenate([world_and_local(m.skeleton, m.values)[1] for m in motions])
     return L.mean(0)
 
 

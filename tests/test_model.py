@@ -13,14 +13,15 @@ from jax.flatten_util import ravel_pytree
 
 import bayesmotion as bm
 from bayesmotion.errors import ModelFileError
-from bayesmotion.io import load
-from bayesmotion.model import HGPDM, LogPosterior
-from bayesmotion.optim import JITTER_LADDER, map_optimize
+from bayesmotion.model.io import load
+from bayesmotion.model.logpost import LogPosterior
+from bayesmotion.model.spec import HGPDM
+from bayesmotion.optim.minimize import JITTER_LADDER, map_optimize
 
 
 def tiny_dataset(n_trials=4, frames=12, fps=15):
     """Segments of the shipped real CMU handshake with two planted labels (test-sized)."""
-    root = files("bayesmotion") / "data" / "builtin"
+    root = files("bayesmotion") / "datasets" / "builtin"
     a = bm.read_bvh(root / "18_01.bvh").select(slice(1, None)).resample(fps)
     b = bm.read_bvh(root / "19_01.bvh").select(slice(1, None)).resample(fps)
     trials = []
@@ -58,8 +59,8 @@ def test_log_posterior_is_sum_of_layers_and_blocked_equals_dense(fitted):
 
 def test_log_posterior_gradient_matches_finite_differences(fitted):
     """At the (well-conditioned) initial point, with free style vectors included."""
-    from bayesmotion.model import init_params
-    from bayesmotion.params import simplex_to_style
+    from bayesmotion.model.fit import init_params
+    from bayesmotion.model.params import simplex_to_style
 
     lp = fitted.log_posterior_fn
     p0 = init_params(fitted.spec, fitted.data)
@@ -325,7 +326,7 @@ def test_an_objective_that_is_never_finite_raises_instead_of_converging():
                                  {"beta_loc": (1.0, 0.0, 1.0)}, {"alpha_noise": float("nan")},
                                  {"style_kappa": -1.0}, {"style_kappa": "ten"}])
 def test_invalid_priors_are_refused_by_name(bad):
-    from bayesmotion.params import Priors
+    from bayesmotion.model.params import Priors
 
     with pytest.raises(bm.BayesmotionError, match=f"Priors.{next(iter(bad))}"):
         Priors(**bad)

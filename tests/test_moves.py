@@ -11,7 +11,8 @@ import pytest
 from jax.flatten_util import ravel_pytree
 
 import bayesmotion as bm
-from bayesmotion.moves import (
+from bayesmotion.inference.emcee_runner import run_emcee
+from bayesmotion.inference.moves import (
     EnsembleHMC,
     IndependenceMove,
     Sequence,
@@ -19,16 +20,11 @@ from bayesmotion.moves import (
     plane_rotations,
     style_slices,
 )
-from bayesmotion.params import simplex_to_style, style_log_jacobian, style_to_simplex
-from bayesmotion.posterior import (
-    ChainTooShortWarning,
-    Target,
-    _default_moves,
-    _independence_block,
-    _run_emcee,
-    idle_factor_modes,
-    sample_posterior,
-)
+from bayesmotion.inference.posterior import ChainTooShortWarning
+from bayesmotion.inference.proposals import default_moves, idle_factor_modes, independence_block
+from bayesmotion.inference.sample import sample_posterior
+from bayesmotion.inference.target import Target
+from bayesmotion.model.params import simplex_to_style, style_log_jacobian, style_to_simplex
 
 
 @pytest.fixture(scope="module")
@@ -128,12 +124,12 @@ def test_sample_posterior_rotates_style_vectors_and_keeps_log_density_exact(thre
     # the block: every coordinate the rotations leave alone, and a rotated one only when its
     # Laplace sd is under 0.1 (pinned by the likelihood)
     ndim = post.target.ndim
-    rotated = sorted({int(i) for idx, _ in _default_moves(post.target).blocks for i in idx})
+    rotated = sorted({int(i) for idx, _ in default_moves(post.target).blocks for i in idx})
     free = [i for i in range(ndim) if i not in rotated]
     cov = np.eye(ndim)
     cov[rotated[4], rotated[4]] = 0.05 ** 2
-    assert _independence_block(post.target, cov).tolist() == sorted(free + [rotated[4]])
-    assert _independence_block(post.target, np.eye(ndim)).tolist() == free
+    assert independence_block(post.target, cov).tolist() == sorted(free + [rotated[4]])
+    assert independence_block(post.target, np.eye(ndim)).tolist() == free
     x = post.chains[:3, -1]
     fresh = np.asarray(post.target.logp_batch(jnp.asarray(x)))
     np.testing.assert_allclose(post.log_prob[:3, -1], fresh, rtol=1e-9)
@@ -419,7 +415,7 @@ def test_independence_move_finds_the_idle_factor_mode_and_samples_both_modes():
     np.testing.assert_allclose([m["weight"] for m in modes], [0.75, 0.25], atol=1e-3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
-        post = _run_emcee(target, centre, 32, 400, 100, 1, 0, None, False, "ball", 1e-2,
+        post = run_emcee(target, centre, 32, 400, 100, 1, 0, None, False, "ball", 1e-2,
                           None, independence=True)
     x = post.chains.reshape(-1, 3)
     second = x[:, 1] < 0.65

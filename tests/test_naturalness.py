@@ -5,14 +5,14 @@ import pytest
 
 from bayesmotion.datasets import load_cmu_handshake
 from bayesmotion.errors import BayesmotionError
-from bayesmotion.features import SEMANTIC_JOINTS, JointMap
-from bayesmotion.naturalness import (
+from bayesmotion.evaluation.naturalness import (
     ANGLE_NAMES,
     NaturalnessReference,
     joint_angles,
     naturalness,
     naturalness_from_positions,
 )
+from bayesmotion.features import SEMANTIC_JOINTS, JointMap
 
 IDENTITY = JointMap(**{k: k for k in SEMANTIC_JOINTS})
 FPS = 30.0

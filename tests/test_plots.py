@@ -11,9 +11,9 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection
 from PIL import Image
 
 import bayesmotion as bm
-from bayesmotion.animate import animate
 from bayesmotion.errors import BayesmotionError
-from bayesmotion.plots import plot_bands, plot_pose, to_plot
+from bayesmotion.viz.animate import animate
+from bayesmotion.viz.plots import plot_bands, plot_pose, to_plot
 
 PARENTS = (-1, 0, 1, 0, 0)  # hips, spine, head, left leg, right leg
 
@@ -199,7 +199,7 @@ def test_spread_samples_hide_what_their_actor_hides_and_take_its_colour():
     """Raw sample arrays used to draw Bandai's static joint_Root (a bone from the world origin
     to the hips), and the CLI/demo listed samples actor by actor, so half took the other
     actor's colour."""
-    from bayesmotion.plots import scene, spread_colors
+    from bayesmotion.viz.plots import scene, spread_colors
 
     a, b = small_motion("a", root="joint_Root"), small_motion("b", root="joint_Root", shift=5)
     P = np.stack([a.positions(), b.positions()])  # (A, T, J, 3)

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 import bayesmotion as bm
-from bayesmotion.diagnostics import compare_posteriors, convergence
-from bayesmotion.posterior import ChainTooShortWarning, _run_emcee
+from bayesmotion.inference.diagnostics import compare_posteriors, convergence
+from bayesmotion.inference.emcee_runner import run_emcee
+from bayesmotion.inference.posterior import ChainTooShortWarning
 
 
 class GaussianTarget:
@@ -33,7 +34,7 @@ class GaussianTarget:
 
 def test_emcee_wrapper_recovers_known_mean_and_variance():
     mu, sd = np.array([1.0, -2.0, 0.5]), np.array([0.5, 2.0, 1.0])
-    post = _run_emcee(GaussianTarget(mu, sd), mu, n_walkers=32, n_steps=3000, burn=None,
+    post = run_emcee(GaussianTarget(mu, sd), mu, n_walkers=32, n_steps=3000, burn=None,
                       thin=None, seed=1, backend=None, progress=False, init="ball", ball=1e-2,
                       moves=None)
     x = post.chains.reshape(-1, 3)
@@ -71,7 +72,7 @@ def test_default_moves_leave_a_skewed_target_invariant(hmc, independence):
     sd = np.sqrt(integrate.quad(lambda u: (u - mean) ** 2 * dens(u), -60, 60)[0] / Z)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
-        post = _run_emcee(LogitBetaTarget(d, a), np.full(d, mean), n_walkers=32, n_steps=4000,
+        post = run_emcee(LogitBetaTarget(d, a), np.full(d, mean), n_walkers=32, n_steps=4000,
                           burn=500, thin=1, seed=0, backend=None, progress=False, init="ball",
                           ball=sd, moves=None, hmc=hmc, independence=independence)
     if hmc:
@@ -88,7 +89,7 @@ def test_default_moves_leave_a_skewed_target_invariant(hmc, independence):
 
 def test_short_chain_warns_with_emcee_rule():
     with pytest.warns(ChainTooShortWarning, match="50 autocorrelation times"):
-        _run_emcee(GaussianTarget([0.0, 0.0], [1.0, 1.0]), np.zeros(2), n_walkers=8,
+        run_emcee(GaussianTarget([0.0, 0.0], [1.0, 1.0]), np.zeros(2), n_walkers=8,
                    n_steps=40, burn=5, thin=1, seed=0, backend=None, progress=False,
                    init="ball", ball=1e-2, moves=None)
 
@@ -132,7 +133,7 @@ def test_killed_run_resumes_from_hdf5_without_losing_samples(tiny_model, tmp_pat
     import emcee
 
     # the test polls the file while the child writes it, with HDF5's file locking on: the
-    # writer waits for the reader's lock (bayesmotion.chainfile) instead of failing
+    # writer waits for the reader's lock (bayesmotion.inference.chainfile) instead of failing
     monkeypatch.delenv("HDF5_USE_FILE_LOCKING", raising=False)
     model_path = tmp_path / "m.npz"
     tiny_model.save(model_path)
@@ -270,7 +271,7 @@ def test_an_impossible_burn_is_refused_before_sampling(tiny_model, monkeypatch):
     def no_target(*a, **k):
         raise AssertionError("the sampler was set up before burn was checked")
 
-    monkeypatch.setattr("bayesmotion.posterior.Target", no_target)
+    monkeypatch.setattr("bayesmotion.inference.sample.Target", no_target)
     with pytest.raises(bm.BayesmotionError, match="burn must be in"):
         bm.sample_posterior(tiny_model, n_steps=100, burn=100, progress=False)
 
@@ -278,7 +279,7 @@ def test_an_impossible_burn_is_refused_before_sampling(tiny_model, monkeypatch):
 def test_the_two_blocks_sum_to_the_joint_log_posterior(tiny_model):
     """p(gamma | Y, X) p(beta, alpha, S | X, I): with the latents fixed every term of the joint
     density belongs to exactly one block, at any point (not only at the MAP)."""
-    from bayesmotion.posterior import Target
+    from bayesmotion.inference.target import Target
 
     joint = Target(tiny_model)
     up, bot = Target(tiny_model, block="upper"), Target(tiny_model, block="bottom")
@@ -352,7 +353,7 @@ def test_independence_flag_and_burn_are_checked_before_sampling(tiny_model, monk
     def no_target(*a, **k):
         raise AssertionError("the sampler was set up before the arguments were checked")
 
-    monkeypatch.setattr("bayesmotion.posterior.Target", no_target)
+    monkeypatch.setattr("bayesmotion.inference.sample.Target", no_target)
     for bad in ({"method": "nuts"}, {"moves": emcee.moves.DEMove()}, {"factorise": True}):
         with pytest.raises(bm.BayesmotionError, match="independence=True adds steps"):
             bm.sample_posterior(tiny_model, n_steps=100, progress=False, independence=True,

@@ -1,5 +1,5 @@
 """Projection of a clip into the model's latents and the Laplace evidence of each emotion level
-(bayesmotion.project; infer_emotion(..., emotion_starts="vertices"))."""
+(bayesmotion.emotion.projection; infer_emotion(..., emotion_starts="vertices"))."""
 
 import jax
 import jax.numpy as jnp
@@ -7,19 +7,19 @@ import numpy as np
 import pytest
 
 import bayesmotion as bm
-from bayesmotion import project
-from bayesmotion.clip import clip_poses
-from bayesmotion.infer import _largest_prior, _style_setup
-from bayesmotion.infer_density import clip_log_density
-from bayesmotion.predict import style_vectors
-from bayesmotion.project import (
-    _STATIC,
+from bayesmotion.emotion import projection as project
+from bayesmotion.emotion.clip import clip_poses
+from bayesmotion.emotion.density import clip_log_density
+from bayesmotion.emotion.infer import _largest_prior, _style_setup
+from bayesmotion.emotion.projection import (
+    STATIC_ARGS,
     _hvps,
-    _init_latents,
     banded_hessian,
     diag_hessian,
+    init_latents,
     laplace_log_evidence,
 )
+from bayesmotion.model.predict import style_vectors
 
 from .conftest import make_tiny_dataset
 
@@ -43,7 +43,7 @@ def _setup(model, trial, T, B):
     Ys = [np.asarray(Y)[:T] for Y in clip_poses(model, trial)]
     fixed, conc, inferred = _style_setup(model, {}, None)
     assert inferred == ["emotion"]
-    X0, I0, _ = _init_latents(model, Ys, B)
+    X0, I0, _ = init_latents(model, Ys, B)
     params = {"X": jnp.asarray(X0), "I": jnp.asarray(I0),
               "u:emotion": jnp.asarray([0.3, -0.2][:len(conc["emotion"]) - 1])}
     mask = jnp.asarray(np.arange(B) < T)
@@ -55,7 +55,7 @@ def _setup(model, trial, T, B):
     statics = {"int_factors": tuple(model.spec.interaction_factors),
                "dyn_factors": tuple(model.spec.dynamics_factors),
                "init_var": float(model.spec.priors.init_var)}
-    assert set(statics) == set(_STATIC)
+    assert set(statics) == set(STATIC_ARGS)
     return params, args, statics
 
 
@@ -160,7 +160,7 @@ def test_vertices_rejects_unknown_mode(tiny_model, tiny_data):
 
 def test_frame_buckets_bound_the_padding():
     """Clips are padded to few sizes (shared compilations) with at most a quarter of waste."""
-    from bayesmotion.project import _bucket
+    from bayesmotion.shapes import padded_length as _bucket
 
     sizes = np.array([_bucket(n) for n in range(1, 2049)])
     n = np.arange(1, 2049)
@@ -171,11 +171,11 @@ def test_frame_buckets_bound_the_padding():
 
 
 def test_projection_rounds_rescale_and_never_worsen(tiny_model, tiny_data, monkeypatch):
-    """_lbfgs: rounds of at most ``round_iter`` iterations, each a jitted L-BFGS call in freshly
+    """minimize_scaled: rounds of at most ``round_iter`` iterations, each a jitted L-BFGS call in freshly
     rescaled coordinates, until ``max_iter``; the result never scores worse than its start and
     its fields describe the returned point."""
-    from bayesmotion import lbfgs
-    from bayesmotion.project import _lbfgs, _neg_value_and_grad
+    from bayesmotion.emotion.projection import _neg_value_and_grad, minimize_scaled
+    from bayesmotion.optim import lbfgs
 
     params, args, statics = _setup(tiny_model, tiny_data[0], 9, 16)
     start = float(_neg_value_and_grad(params, *args, **statics)[0])
@@ -184,7 +184,7 @@ def test_projection_rounds_rescale_and_never_worsen(tiny_model, tiny_data, monke
     monkeypatch.setattr(project, "_scaled_lbfgs",
                         lambda x, scale, n, *a, **k: limits.append(n) or real(x, scale, n, *a,
                                                                                **k))
-    p, res = _lbfgs(params, args, statics, 12, round_iter=5)
+    p, res = minimize_scaled(params, args, statics, 12, round_iter=5)
     assert res.status == lbfgs.MAX_ITER and res.message == lbfgs.MESSAGES[lbfgs.MAX_ITER]
     assert limits == [5, 5, 2] and res.nit == 12 and res.nfev >= 12
     assert res.fun < start
@@ -192,7 +192,7 @@ def test_projection_rounds_rescale_and_never_worsen(tiny_model, tiny_data, monke
                                     rel=1e-12)
     # run to convergence: it stops before the limit, at a point with a small gradient
     limits.clear()
-    p, res = _lbfgs(params, args, statics, 5000)
+    p, res = minimize_scaled(params, args, statics, 5000)
     assert res.success and res.nit < 5000 and len(limits) == -(-res.nit // 100)
     value = float(_neg_value_and_grad(p, *args, **statics)[0])
     assert res.fun == pytest.approx(value, rel=1e-12) and res.fun < start

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from bayesmotion.posterior import ChainTooShortWarning
+from bayesmotion.inference.posterior import ChainTooShortWarning
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from bayesmotion.app.report import table, write_report
 from bayesmotion.errors import BayesmotionError
-from bayesmotion.report import table, write_report
 
 
 def test_report_embeds_images_by_type_and_escapes_text(tmp_path):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import bayesmotion as bm
-from bayesmotion.data.representation import PoseCodec
+from bayesmotion.codecs.pose import PoseCodec
 
 
 @pytest.fixture(scope="module")
@@ -127,7 +127,7 @@ def test_mover_is_the_joint_that_walks_in_most_clips(bandai_root):
     motions = [t.actors[0] for t in walks]
     root = [np.ptp(m.values[:, :3], axis=0).max() for m in motions]
     assert max(root) > 50 and sorted(root)[-2] < 1e-9  # joint_Root moves in one clip only
-    from bayesmotion.data.representation import find_mover
+    from bayesmotion.data.motion import find_mover
 
     assert motions[0].skeleton.names[find_mover(motions)] == "Hips"
 

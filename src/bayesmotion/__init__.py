@@ -7,11 +7,10 @@ variance (:meth:`FittedHGPDM.generate`), and emotion inference on observed motio
 (:func:`infer_emotion`). Importing bayesmotion enables float64 in JAX (see ``_config``).
 """
 
-from . import (
-    _config,  # noqa: F401  (float64 before any array is made)
-    datasets,
-)
-from .data import (
+from bayesmotion import _config, datasets  # noqa: F401  (_config: float64 before any array)
+from bayesmotion._version import __version__
+from bayesmotion.codecs.pose import PoseCodec
+from bayesmotion.data import (
     Motion,
     MotionDataset,
     Skeleton,
@@ -21,24 +20,23 @@ from .data import (
     read_bvh,
     write_bvh,
 )
-from .data.bandai import load_bandai
-from .data.emotion import EMOTION_PRESETS, EmotionStyle, apply_emotion
-from .data.handshakes import load_cmu_handshake, load_handshakes
-from .data.mirror import canonical_side, mirror, reframe, rest_frames
-from .data.representation import PoseCodec
-from .errors import BayesmotionError, BVHError, ModelFileError, SkeletonMismatchError
-from .fitted import FittedHGPDM
-from .generate import Rollout, Transition
-from .infer import EmotionPosterior, infer_emotion, infer_online
-from .io import load
-from .model import HGPDM
-from .params import Priors
-from .posterior import Posterior, sample_posterior
-
-__version__ = "0.1.0"
+from bayesmotion.data.emotion import EMOTION_PRESETS, EmotionStyle, apply_emotion
+from bayesmotion.data.mirror import canonical_side, mirror, reframe, rest_frames
+from bayesmotion.datasets.bandai import load_bandai
+from bayesmotion.datasets.handshakes import load_cmu_handshake, load_handshakes
+from bayesmotion.emotion.infer import infer_emotion, infer_online
+from bayesmotion.emotion.result import EmotionPosterior
+from bayesmotion.errors import BayesmotionError, BVHError, ModelFileError, SkeletonMismatchError
+from bayesmotion.inference.posterior import Posterior
+from bayesmotion.inference.sample import sample_posterior
+from bayesmotion.model.fitted import FittedHGPDM
+from bayesmotion.model.generate import Rollout, Transition
+from bayesmotion.model.io import load
+from bayesmotion.model.params import Priors
+from bayesmotion.model.spec import HGPDM
 
 __all__ = [
-    "EMOTION_PRESETS", "HGPDM", "BVHError", "BayesmotionError", "EmotionPosterior",
+    "EMOTION_PRESETS", "HGPDM", "__version__", "BVHError", "BayesmotionError", "EmotionPosterior",
     "EmotionStyle", "FittedHGPDM", "ModelFileError", "Motion", "MotionDataset", "PoseCodec",
     "Posterior", "Priors", "Rollout", "Skeleton", "SkeletonMismatchError", "Transition", "Trial",
     "apply_emotion", "canonical_side", "datasets", "forward_kinematics", "infer_emotion",

@@ -1,5 +1,5 @@
 """``python -m bayesmotion`` runs the command-line interface."""
 
-from .cli import main
+from bayesmotion.app.cli import main
 
 raise SystemExit(main())

@@ -7,8 +7,8 @@
 * :mod:`~bayesmotion.baselines.amaya` -- emotion from motion (Amaya et al. 1996).
 """
 
-from .amaya import apply_amaya, fit_amaya
-from .classifier import (
+from bayesmotion.baselines.amaya import apply_amaya, fit_amaya
+from bayesmotion.baselines.classifier import (
     LogisticRegression,
     NearestNeighbour,
     accuracy,
@@ -16,8 +16,8 @@ from .classifier import (
     mean_pose_features,
     trial_features,
 )
-from .rose import RBFInterpolant, Verb, emotion_coordinates, fit_rbf, fit_verb
-from .strength import (
+from bayesmotion.baselines.rose import RBFInterpolant, Verb, emotion_coordinates, fit_rbf, fit_verb
+from bayesmotion.baselines.strength import (
     StrengthClassifier,
     StrengthModel,
     fit_strength,
@@ -26,7 +26,7 @@ from .strength import (
     ranking_accuracy,
     simplify_curve,
 )
-from .unuma import (
+from bayesmotion.baselines.unuma import (
     EmotionComponent,
     FourierModel,
     blend,

@@ -27,7 +27,7 @@ from typing import Literal
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from ..data.emotion import (
+from bayesmotion.data.emotion import (
     CATEGORIES,
     EmotionStyle,
     apply_emotion,
@@ -35,8 +35,8 @@ from ..data.emotion import (
     motion_mover,
     unwrapped,
 )
-from ..data.motion import Motion
-from ..errors import BayesmotionError, SkeletonMismatchError
+from bayesmotion.data.motion import Motion
+from bayesmotion.errors import BayesmotionError, SkeletonMismatchError
 
 SMOOTH_S = 0.03  # Gaussian smoothing (seconds of neutral time) before angular speeds
 

@@ -21,9 +21,9 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import log_softmax, softmax
 
-from ..data.motion import Motion, MotionDataset
-from ..errors import BayesmotionError
-from ..features import JointMap, body_frame_pose, clip_features
+from bayesmotion.data.motion import Motion, MotionDataset
+from bayesmotion.errors import BayesmotionError
+from bayesmotion.features import JointMap, body_frame_pose, clip_features
 
 
 def _check_xy(X, y) -> tuple[np.ndarray, np.ndarray]:

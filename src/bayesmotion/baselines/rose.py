@@ -28,9 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..data.motion import Motion
-from ..data.skeleton import Skeleton
-from ..errors import BayesmotionError, SkeletonMismatchError
+from bayesmotion.data.motion import Motion
+from bayesmotion.data.skeleton import Skeleton
+from bayesmotion.errors import BayesmotionError, SkeletonMismatchError
 
 KERNELS = {
     "cubic": lambda r, eps: r**3,

@@ -38,12 +38,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..data.motion import Motion
-from ..errors import BayesmotionError
-from ..features import JointMap, body_frame_pose
-from ..features.joint_map import Names
-from ..features.movement import leg_length
-from ..features.pose import semantic_positions
+from bayesmotion.data.motion import Motion
+from bayesmotion.errors import BayesmotionError
+from bayesmotion.features import JointMap, body_frame_pose
+from bayesmotion.features.joint_map import Names
+from bayesmotion.features.movement import leg_length
+from bayesmotion.features.pose import semantic_positions
 
 DEFAULT_ORDER = (("happy", "neutral"), ("neutral", "sad"), ("angry", "neutral"))
 

@@ -26,9 +26,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from ..data.motion import Motion
-from ..data.skeleton import Skeleton
-from ..errors import BayesmotionError, SkeletonMismatchError
+from bayesmotion.data.motion import Motion
+from bayesmotion.data.skeleton import Skeleton
+from bayesmotion.errors import BayesmotionError, SkeletonMismatchError
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,9 +1,9 @@
 """Motion data: skeletons, motions, trials, datasets, BVH I/O, forward kinematics."""
 
-from .bvh import parse_bvh, read_bvh, write_bvh
-from .fk import forward_kinematics
-from .motion import Motion, MotionDataset, Trial
-from .skeleton import Skeleton
+from bayesmotion.data.bvh import parse_bvh, read_bvh, write_bvh
+from bayesmotion.data.fk import forward_kinematics
+from bayesmotion.data.motion import Motion, MotionDataset, Trial
+from bayesmotion.data.skeleton import Skeleton
 
 __all__ = ["Motion", "MotionDataset", "Skeleton", "Trial", "forward_kinematics", "parse_bvh",
            "read_bvh", "write_bvh"]

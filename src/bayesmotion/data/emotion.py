@@ -33,12 +33,11 @@ from types import MappingProxyType
 
 import numpy as np
 
-from ..errors import BayesmotionError
-from .motion import Motion
-from .skeleton import ROTATION_CHANNELS, Skeleton
+from bayesmotion.data.motion import Motion, find_mover
+from bayesmotion.data.skeleton import ROTATION_CHANNELS, UP_AXIS, Skeleton
+from bayesmotion.errors import BayesmotionError
 
 CATEGORIES = ("torso", "arms", "legs")
-UP_AXIS = 1  # Y is up in BVH files from CMU and Bandai
 
 CMU_BODY_PARTS: Mapping[str, str] = MappingProxyType({
     **{n: "torso" for n in ("LowerBack", "Spine", "Spine1", "Neck", "Neck1", "Head")},
@@ -207,9 +206,7 @@ def channel_categories(skeleton: Skeleton, categories: Mapping[str, str] | None 
 
 def motion_mover(*motions: Motion) -> int:
     """The joint carrying the motions' global position and heading: the one whose horizontal
-    position channels travel most (:func:`bayesmotion.data.representation.find_mover`)."""
-    from .representation import find_mover
-
+    position channels travel most (:func:`bayesmotion.data.motion`)."""
     return find_mover(list(motions))
 
 

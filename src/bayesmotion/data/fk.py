@@ -14,7 +14,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .skeleton import Skeleton
+from bayesmotion.data.skeleton import Skeleton
+from bayesmotion.shapes import padded_length
 
 
 def axis_rotation(axis: str, angle: jax.Array) -> jax.Array:
@@ -154,14 +155,6 @@ def _jitted_fk(layout: tuple, with_end_sites: bool):
     return jax.jit(partial(_fk, layout=layout, with_end_sites=with_end_sites))
 
 
-def _bucket(n: int) -> int:
-    """Frame counts are padded up to 8 * 2^k so clips of many lengths share a few compilations."""
-    b = 8
-    while b < n:
-        b *= 2
-    return b
-
-
 def forward_kinematics(skeleton: Skeleton, values, with_end_sites: bool = False) -> jax.Array:
     """World joint positions (JAX).
 
@@ -180,7 +173,7 @@ def forward_kinematics(skeleton: Skeleton, values, with_end_sites: bool = False)
     lead = values.shape[:-1]
     flat = values.reshape(-1, values.shape[-1])
     n = flat.shape[0]
-    flat = jnp.pad(flat, ((0, _bucket(n) - n), (0, 0)))
+    flat = jnp.pad(flat, ((0, padded_length(n) - n), (0, 0)))
     out = f(flat, jnp.asarray(skeleton.offsets), jnp.asarray(_end_offsets(skeleton)))[:n]
     return out.reshape(*lead, *out.shape[-2:])
 
@@ -193,7 +186,7 @@ def fk_function(skeleton: Skeleton, with_end_sites: bool = False):
                                   with_end_sites=with_end_sites)
 
 
-def _np_axis_rotation(axis: str, rad: np.ndarray) -> np.ndarray:
+def np_axis_rotation(axis: str, rad: np.ndarray) -> np.ndarray:
     c, s = np.cos(rad), np.sin(rad)
     o, z = np.ones_like(rad), np.zeros_like(rad)
     rows = {"X": ((o, z, z), (z, c, -s), (z, s, c)), "Y": ((c, z, s), (z, o, z), (-s, z, c)),
@@ -207,7 +200,7 @@ def euler_matrices(order: str, degrees: np.ndarray) -> np.ndarray:
     degrees = np.asarray(degrees, dtype=np.float64)
     R = np.broadcast_to(np.eye(3), (degrees.shape[0], 3, 3))
     for k, axis in enumerate(order):
-        R = R @ _np_axis_rotation(axis, np.deg2rad(degrees[:, k]))
+        R = R @ np_axis_rotation(axis, np.deg2rad(degrees[:, k]))
     return R
 
 
@@ -353,7 +346,7 @@ def forward_kinematics_with_variance(skeleton: Skeleton, values, var):
     f = _jitted_fk_variance(layout_key(skeleton))
     values, var = np.asarray(values, np.float64), np.asarray(var, np.float64)
     n = values.shape[0]
-    pad = ((0, _bucket(n) - n), (0, 0))
+    pad = ((0, padded_length(n) - n), (0, 0))
     p, v = f(np.pad(values, pad), np.pad(var, pad), skeleton.offsets)
     return np.asarray(p)[:n], np.asarray(v)[:n]
 

@@ -37,11 +37,10 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..errors import BayesmotionError
-from .fk import euler_matrices, other_euler_solution
-from .motion import Motion
-from .representation import find_mover
-from .skeleton import Skeleton
+from bayesmotion.data.fk import euler_matrices, other_euler_solution
+from bayesmotion.data.motion import Motion, find_mover
+from bayesmotion.data.skeleton import Skeleton
+from bayesmotion.errors import BayesmotionError
 
 # (left, right) spellings, tried as prefix, as (longer than one letter) suffix and after a
 # namespace separator ("mixamorig:LeftArm", "Character1_LeftUpLeg"); a name pairs only with a
@@ -128,7 +127,7 @@ class MirrorPlan(NamedTuple):
     left: np.ndarray
 
 
-def _world_and_local(skeleton: Skeleton, values: np.ndarray):
+def world_and_local(skeleton: Skeleton, values: np.ndarray):
     """World rotations (T, J, 3, 3), local rotations (T, J, 3, 3) and local translations
     (T, J, 3) of a (T, C) channel array."""
     rot_idx, orders = skeleton.rotation_layout()
@@ -174,7 +173,7 @@ def mirror_plan(skeleton: Skeleton, motions: Iterable[Motion] = (), *, axis: int
     size = skeleton.size()
     rigid = np.ones(skeleton.n_joints, dtype=bool)
     if motions:
-        refs = [_world_and_local(skeleton, m.values) for m in motions]
+        refs = [world_and_local(skeleton, m.values) for m in motions]
         G = np.concatenate([r[0] for r in refs])
         t_all = np.concatenate([r[2] for r in refs])
         t_mean = t_all.mean(0)
@@ -264,7 +263,7 @@ def rest_frames(motions: Sequence[Motion], fixed: Iterable[int] | None = None) -
             fixed.add(j)
             j = sk.parents[j]
     fixed = set(fixed)
-    L = np.concatenate([_world_and_local(sk, m.values)[1] for m in motions])
+    L = np.concatenate([world_and_local(sk, m.values)[1] for m in motions])
     B = np.empty((sk.n_joints, 3, 3))
     for j, p in enumerate(sk.parents):
         if j in fixed:
@@ -314,7 +313,7 @@ def _reframe(motion: Motion, perm: np.ndarray, M: np.ndarray, A: np.ndarray,
     if len(perm) != sk.n_joints:
         raise BayesmotionError(f"mirror plan is for {len(perm)} joints, the motion has "
                                f"{sk.n_joints}")
-    _, L, t = _world_and_local(sk, motion.values)
+    _, L, t = world_and_local(sk, motion.values)
     rot_idx, orders = sk.rotation_layout()
     pos_idx = sk.position_layout()
     out = motion.values.copy()
@@ -420,7 +419,7 @@ def lateral_ratio(motion: Motion, plan: MirrorPlan | None = None) -> float:
     """Mean sideways speed towards the actor's left, as a fraction of the mean horizontal speed
     (about +0.5 for a diagonal walk to the left, -0.5 to the right, near 0 straight ahead or
     back; mirroring negates it). The mover is the joint that carries the translation
-    (:func:`~bayesmotion.data.representation.find_mover`); the actor's left is the direction
+    (:func:`~bayesmotion.data.motion`); the actor's left is the direction
     from the right joints to their left partners, summed over the pairs that hang from the
     midline (hip joints, shoulders)."""
     sk = motion.skeleton

@@ -10,8 +10,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import BayesmotionError
-from .skeleton import ROTATION_CHANNELS, Skeleton
+from bayesmotion.data.fk import numpy_positions
+from bayesmotion.data.skeleton import ROTATION_CHANNELS, Skeleton, horizontal_columns
+from bayesmotion.errors import BayesmotionError
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -63,8 +64,6 @@ class Motion:
 
     def positions(self, with_end_sites: bool = False) -> np.ndarray:
         """(T, J, 3) world joint positions by forward kinematics (float64 NumPy)."""
-        from .fk import numpy_positions
-
         return numpy_positions(self.skeleton, self.values, with_end_sites)
 
     def rotation_mask(self) -> np.ndarray:
@@ -259,3 +258,24 @@ class MotionDataset:
         """(training set without trial i, trial i) for every i."""
         for i in range(len(self)):
             yield self._with([t for k, t in enumerate(self.trials) if k != i]), self.trials[i]
+
+
+def find_mover(motions) -> int:
+    """The joint whose horizontal position channels travel the most (0 when none moves).
+
+    BVH exporters differ: CMU translates the root, Bandai keeps a ``joint_Root`` at the origin
+    and translates ``Hips`` below it. "Travel" is the median frame-to-frame horizontal step,
+    summed over the motions, so that a joint which moves in a few clips only is not taken for
+    the one that walks in all (Bandai's ``joint_Root`` sits at the origin in every walk but the
+    short walk-back normal one, where it carries the translation)."""
+    sk = motions[0].skeleton
+    best, best_step = 0, 0.0
+    for j in range(sk.n_joints):
+        h = horizontal_columns(sk, j)
+        if h.size == 0:
+            continue
+        step = sum(float(np.median(np.linalg.norm(np.diff(m.values[:, h], axis=0), axis=-1)))
+                   for m in motions if m.n_frames > 1)
+        if step > best_step:
+            best, best_step = j, step
+    return best

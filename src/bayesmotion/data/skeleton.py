@@ -15,11 +15,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import BayesmotionError
+from bayesmotion.errors import BayesmotionError
 
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
 ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
 VALID_CHANNELS = POSITION_CHANNELS + ROTATION_CHANNELS
+UP_AXIS = 1  # Y is up in BVH files from CMU and Bandai
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,3 +186,9 @@ class Skeleton:
                        d["channels"], {int(k): v for k, v in d.get("end_sites", {}).items()})
         except (KeyError, TypeError, ValueError) as e:
             raise BayesmotionError(f"invalid skeleton description: {e}") from None
+
+
+def horizontal_columns(skeleton: Skeleton, mover: int = 0) -> np.ndarray:
+    """Indices of ``mover``'s horizontal (non-up) position channels in a frame's values."""
+    cols = skeleton.position_layout()[mover]
+    return np.array([cols[a] for a in range(3) if a != UP_AXIS and cols[a] >= 0], dtype=int)

@@ -28,8 +28,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
-from ..data.skeleton import Skeleton
-from ..errors import BayesmotionError
+from bayesmotion.data.skeleton import Skeleton
+from bayesmotion.errors import BayesmotionError
 
 Names = Skeleton | Sequence[str]  # a skeleton, or its (J,) joint names
 

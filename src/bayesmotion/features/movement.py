@@ -29,9 +29,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from ..data.motion import Motion
-from .joint_map import JointMap, Names
-from .pose import distance, semantic_positions
+from bayesmotion.data.motion import Motion
+from bayesmotion.features.joint_map import JointMap, Names
+from bayesmotion.features.pose import distance, semantic_positions
 
 
 def leg_length(p: dict[str, np.ndarray]) -> float:

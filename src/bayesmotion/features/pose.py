@@ -40,8 +40,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..data.motion import Motion
-from .joint_map import JointMap, Names, resolve_indices
+from bayesmotion.data.motion import Motion
+from bayesmotion.features.joint_map import JointMap, Names, resolve_indices
 
 _ANGLES = (
     ("angle_spine_shoulders", "r_shoulder", "spine", "l_shoulder"),

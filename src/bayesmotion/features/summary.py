@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..data.motion import Motion
-from ..errors import BayesmotionError
-from .joint_map import JointMap, Names
-from .movement import movement_features_from_positions
-from .pose import POSE_FEATURE_NAMES, pose_features
+from bayesmotion.data.motion import Motion
+from bayesmotion.errors import BayesmotionError
+from bayesmotion.features.joint_map import JointMap, Names
+from bayesmotion.features.movement import movement_features_from_positions
+from bayesmotion.features.pose import POSE_FEATURE_NAMES, pose_features
 
 MOVEMENT_SUMMARY_NAMES = (
     "std_root_height",      # L

@@ -1,0 +1,1 @@
+"""The applications: the command-line interface, the demo and its HTML report."""

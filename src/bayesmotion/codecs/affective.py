@@ -1,0 +1,186 @@
+"""Per-frame affective pose features as a model's pose space (``HGPDM(pose_space="affective")``).
+
+A joint-angle codec (:class:`~bayesmotion.codecs.pose`) makes the bottom
+layer explain every joint angle, and between clips of one actor the joint angles change most
+with what the actor does (walking ahead, back, sideways), not with the emotion. The 18 pose
+features of Bhattacharya et al. (2021; :mod:`bayesmotion.features.pose`) are invariant to
+translation, rotation and uniform scale of the body and describe posture: angles at the neck,
+shoulders and root, and ratios of distances and triangle areas between hands, feet, head and
+torso. With them as Y the same hierarchy (GP-LVM, style interaction layer, second-order GPDM)
+models how the posture evolves, and an emotion inferred from a clip of an action the training
+clips did not pair with that emotion no longer has to get past the action's joint angles.
+
+The price: the features do not determine a pose, so a model in this space cannot generate
+motion (:meth:`AffectiveCodec.decode` raises). Generation needs a joint-angle model.
+
+Before the features are read, a motion goes through the same label-free steps as in a
+joint-angle codec (the mover's ancestors' translation folded into the mover; with a canonical
+side, motions to the actor's right mirrored, which swaps the left- and right-hand features).
+Rest frames change joint angles only, never joint positions, so they do not apply here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from bayesmotion.codecs.pose import Encoded, PoseCodec, check_layout
+from bayesmotion.data.motion import Motion
+from bayesmotion.errors import BayesmotionError
+from bayesmotion.features.pose import POSE_FEATURE_NAMES, affective_features
+
+POSE_SPACES = ("angles", "affective")
+
+
+@dataclass(frozen=True, eq=False)
+class AffectiveCodec:
+    """Fitted map from one actor slot's motions to standardised affective pose features.
+
+    Attributes:
+        base: the joint-angle codec whose :meth:`PoseCodec.prepare` (root folding, canonical
+            side) every motion goes through first; its channel statistics are not used.
+        mean: (18,) per-feature mean over the training frames.
+        scale: (18,) per-feature standard deviation over the training frames (1 where a
+            feature is constant, to rounding).
+    """
+
+    base: PoseCodec
+    mean: np.ndarray
+    scale: np.ndarray
+    decodes: ClassVar[bool] = False
+    pose_space: ClassVar[str] = "affective"
+
+    @property
+    def skeleton(self):
+        return self.base.skeleton
+
+    @property
+    def root_mode(self) -> str:
+        return self.base.root_mode
+
+    @property
+    def fps(self):
+        return self.base.fps
+
+    @property
+    def side(self):
+        return self.base.side
+
+    @property
+    def dim(self) -> int:
+        return int(self.mean.size)
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return POSE_FEATURE_NAMES
+
+    @classmethod
+    def fit(cls, motions, partners=None, root_mode: str = "velocity",
+            canonical_side: bool = False, side_threshold: float = 0.15) -> AffectiveCodec:
+        """Fit the preparation steps and the features' means and scales on training motions
+        (one actor slot; arguments as :meth:`PoseCodec.fit`)."""
+        motions = list(motions)
+        base = PoseCodec.fit(motions, partners, root_mode, "type", False, canonical_side,
+                             side_threshold)
+        proto = cls(base, np.zeros(len(POSE_FEATURE_NAMES)), np.ones(len(POSE_FEATURE_NAMES)))
+        F = np.concatenate([proto._features(m)[0] for m in motions])
+        mean, std = F.mean(0), F.std(0)
+        # a feature constant but for rounding keeps scale 1 (not noise blown up to unit sd)
+        return cls(base, mean, np.where(std > 1e-9 * (1.0 + np.abs(mean)), std, 1.0))
+
+    def prepare(self, motion: Motion) -> tuple[Motion, bool]:
+        """The motion as the features read it (root folded, on the canonical side) and whether
+        it was mirrored."""
+        return self.base.prepare(motion)
+
+    def _features(self, motion: Motion) -> tuple[np.ndarray, bool]:
+        check_layout(self.skeleton, motion.skeleton)
+        prepared, mirrored = self.prepare(motion)
+        F = affective_features(prepared)
+        bad = ~np.all(np.isfinite(F), axis=1)
+        if bad.any():
+            names = [POSE_FEATURE_NAMES[j] for j in np.flatnonzero(~np.isfinite(F).all(0))]
+            raise BayesmotionError(
+                f"{motion.name or 'motion'}: affective features {names} are undefined in "
+                f"{int(bad.sum())} frame(s), first {int(np.flatnonzero(bad)[0])} (a ratio's "
+                f"reference distance or area is zero: joints that coincide)")
+        return F, mirrored
+
+    def encode(self, motion: Motion, partner: Motion | None = None) -> Encoded:
+        """Motion -> (Y (T, 18) standardised features, anchor (empty: nothing to decode),
+        mirrored). ``partner`` is accepted for the codec interface and not read: each actor's
+        features are its own."""
+        F, mirrored = self._features(motion)
+        return Encoded((F - self.mean) / self.scale, np.zeros(0), mirrored)
+
+    def decode(self, *args, **kwargs):
+        raise BayesmotionError(
+            "this model's pose space is the 18 affective pose features "
+            "(HGPDM(pose_space='affective')): they do not determine joint angles, so it infers "
+            "emotion but cannot generate motion; fit HGPDM(pose_space='angles') to generate")
+
+    decode_rig = decode
+
+    # ---------------------------------------------------------------- saving
+    def to_arrays(self, prefix: str) -> dict[str, np.ndarray]:
+        return {**self.base.to_arrays(prefix), f"{prefix}feature_mean": self.mean,
+                f"{prefix}feature_scale": self.scale}
+
+    def to_meta(self) -> dict:
+        return {**self.base.to_meta(), "pose_space": self.pose_space}
+
+    @classmethod
+    def from_saved(cls, meta: dict, arrays, prefix: str) -> AffectiveCodec:
+        """The codec written by :meth:`to_arrays`/:meth:`to_meta`; ValueError on bad arrays."""
+        base = PoseCodec.from_saved(meta, arrays, prefix)
+        n = len(POSE_FEATURE_NAMES)
+        mean = np.asarray(arrays[f"{prefix}feature_mean"], dtype=float)
+        scale = np.asarray(arrays[f"{prefix}feature_scale"], dtype=float)
+        if mean.shape != (n,) or scale.shape != (n,):
+            raise ValueError(f"{prefix.rstrip('/')}: feature mean and scale must have shape "
+                             f"({n},), got {mean.shape} and {scale.shape}")
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(scale)) and np.all(scale > 0)):
+            raise ValueError(f"{prefix.rstrip('/')}: feature mean and scale must be finite, "
+                             f"the scale positive")
+        return cls(base, mean, scale)
+
+
+def fit_codec(pose_space: str, motions, partners=None, root_mode: str = "velocity",
+              scaling: str = "type", rest_frames: bool = False, canonical_side: bool = False):
+    """The codec of ``pose_space`` ("angles": :class:`PoseCodec`, "affective":
+    :class:`AffectiveCodec`) fitted on one actor slot's motions."""
+    check_pose_space(pose_space, rest_frames, scaling)
+    if pose_space == "angles":
+        return PoseCodec.fit(motions, partners, root_mode, scaling, rest_frames, canonical_side)
+    return AffectiveCodec.fit(motions, partners, root_mode, canonical_side)
+
+
+def check_pose_space(pose_space: str, rest_frames: bool = False,
+                     scaling: str = "type") -> None:
+    """Raise BayesmotionError unless ``pose_space`` is known and its options apply."""
+    if pose_space not in POSE_SPACES:
+        raise BayesmotionError(f"pose_space must be one of {'/'.join(POSE_SPACES)}, got "
+                               f"{pose_space!r}")
+    if pose_space == "affective" and rest_frames:
+        raise BayesmotionError("rest_frames turns joint angles only; the affective pose space "
+                               "reads joint positions, which rest frames leave unchanged: "
+                               "drop rest_frames")
+    if pose_space == "affective" and scaling != "type":
+        raise BayesmotionError(f"scaling={scaling!r} chooses joint-angle channel scales; the "
+                               f"affective pose space standardises each feature: leave "
+                               f"scaling at its default")
+
+
+def codec_from_saved(meta: dict, arrays, prefix: str):
+    """The codec a model file holds (files without ``pose_space`` hold joint-angle codecs)."""
+    if not isinstance(meta, dict):
+        raise ValueError(f"{prefix.rstrip('/')}: codec metadata must be a mapping, got "
+                         f"{type(meta).__name__}")
+    space = meta.get("pose_space", "angles")
+    if space == "angles":
+        return PoseCodec.from_saved(meta, arrays, prefix)
+    if space == "affective":
+        return AffectiveCodec.from_saved(meta, arrays, prefix)
+    raise ValueError(f"{prefix.rstrip('/')}: unknown pose space {space!r}")

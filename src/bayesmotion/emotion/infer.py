@@ -1,0 +1,399 @@
+"""Emotion-style inference from observed motion: ``infer_emotion(model, clip)``.
+
+1. The clip is read (Trial, Motions, BVH paths, or model-space arrays), matched to the model's
+   skeleton by joint names, resampled to the model's frame rate and encoded.
+2. Projection: the latents X*, I* and the clip's style vectors are found jointly by MAP
+   (L-BFGS) of the clip's predictive log-density (bayesmotion.emotion.density) with the model
+   fixed. By default (``emotion_starts="vertices"``) one projection per emotion level with the
+   emotion held at it, from the latents of the nearest frames of that level's training trials;
+   the level is chosen by its Laplace evidence (bayesmotion.emotion.projection), then its latents and the
+   free emotion are refined together. With "nearest", one start from the latents of the nearest
+   training frames and the style of most of them; "levels" adds one start per emotion level
+   and keeps the best optimum. When the couple is inferred: one start per couple level, the
+   best optimum kept. L-BFGS runs in coordinates scaled by the exact Hessian diagonal.
+   Latent uncertainty: a diagonal Laplace approximation (exact diag H, coloured HVPs).
+3. Style posterior: emcee samples the clip's emotion coordinates (and its couple style when not
+   given) on the simplex, with the latents held at their MAP -- i.e. the conditional posterior
+   p(s* | Y*, X*, I*) proportional to p(s*) p(X* | I*, s*) p(I* | s*) (interaction and dynamics
+   predictive likelihoods). With a Posterior as ``model`` this is repeated for several posterior
+   draws of the hyperparameters and the samples are pooled (a mixture over draws).
+   With the latents fixed, the density is a low-degree polynomial in the styles; it is expanded
+   once per clip (bayesmotion.emotion.density), so each walker step costs
+   O(T P D) instead of O(T N^2).
+
+Arrays are padded to frame buckets (four sizes per doubling, :func:`bayesmotion.shapes.padded_length`) so
+clips of many lengths share compiled functions.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.optimize
+
+from bayesmotion.emotion.clip import clip_poses, clip_poses_and_sides
+from bayesmotion.emotion.density import (
+    expanded_log_density,
+    expanded_log_likelihood,
+    style_expansion,
+)
+from bayesmotion.emotion.projection import (
+    STATIC_ARGS,
+    diag_hessian,
+    minimize_scaled,
+    project,
+    project_levels,
+    projection_starts,
+)
+from bayesmotion.emotion.result import EmotionPosterior, pool_posteriors
+from bayesmotion.errors import BayesmotionError
+from bayesmotion.inference.posterior import Posterior
+from bayesmotion.inference.target import capped_covariance, draw_start, in_halves
+from bayesmotion.model.generate import style_coords
+from bayesmotion.model.params import simplex_to_style, style_to_simplex
+from bayesmotion.model.predict import style_vectors
+from bayesmotion.shapes import padded_length
+
+
+@partial(jax.jit, static_argnames=STATIC_ARGS + ("free",))
+def _expansion(latents, P, Ys, mask, fixed, conc, int_factors, dyn_factors, init_var, free):
+    return style_expansion(P, latents, Ys, mask, fixed, dict(free), int_factors, dyn_factors,
+                           init_var)
+
+
+def _style_logp(x, E, conc, power, int_factors, dyn_factors, free):
+    """log p of the clip at free styles ``x`` (sum K_f - 1,), latents fixed: O(T P D) through
+    the style expansion (bayesmotion.emotion.density); the likelihood raised to ``power``."""
+    params, start = {}, 0
+    for f, K in free:
+        params["u:" + f] = x[start:start + K - 1]
+        start += K - 1
+    return expanded_log_density(E, params, conc, dict(free), int_factors, dyn_factors, power)
+
+
+_STYLE_STATIC = ("int_factors", "dyn_factors", "free")
+
+
+@partial(jax.jit, static_argnames=_STYLE_STATIC)
+def _style_logp_batch(flat, E, conc, power, int_factors, dyn_factors, free):
+    return jax.vmap(lambda x: _style_logp(x, E, conc, power, int_factors, dyn_factors,
+                                          free))(flat)
+
+
+@partial(jax.jit, static_argnames=_STYLE_STATIC)
+def _style_neg_vg(x, E, conc, power, int_factors, dyn_factors, free):
+    f = lambda y: -_style_logp(y, E, conc, power, int_factors, dyn_factors, free)
+    return jax.value_and_grad(f)(x)
+
+
+@partial(jax.jit, static_argnames=_STYLE_STATIC)
+def _loglik_at_coords(W, E, int_factors, dyn_factors, free):
+    """(n,) untempered clip log-likelihood at emotion coordinates W (n, K), the simplex closed."""
+    return jax.vmap(lambda w: expanded_log_likelihood(E, {"emotion": w}, dict(free), int_factors,
+                                                      dyn_factors))(W)
+
+
+@partial(jax.jit, static_argnames=_STYLE_STATIC)
+def _style_hessian(x, E, conc, power, int_factors, dyn_factors, free):
+    return jax.hessian(_style_logp)(x, E, conc, power, int_factors, dyn_factors, free)
+
+
+def _given_styles(model, couple, styles) -> dict:
+    """The style factors the caller fixed: ``styles`` plus the ``couple`` shortcut."""
+    given = dict(styles or {})
+    if couple is not None:
+        if "couple" in given:
+            raise BayesmotionError("give the couple either as couple= or in styles=, not both")
+        given["couple"] = couple
+    if "emotion" in given:
+        raise BayesmotionError("the emotion is what infer_emotion infers; it cannot be given")
+    unknown = [f for f in given if f not in model.spec.factors]
+    if unknown:
+        raise BayesmotionError(f"the model has no style factor {unknown}; its factors are "
+                               f"{list(model.spec.factors)}")
+    return given
+
+
+def _style_setup(model, given: dict, prior):
+    """Which factors are inferred, fixed vectors of the others, Dirichlet concentrations."""
+    if "emotion" not in model.levels:
+        raise BayesmotionError("the model has no 'emotion' style factor")
+    fixed, conc, inferred = {}, {}, []
+    for f in model.spec.factors:
+        K = len(model.levels[f])
+        if K == 1:  # a single level: the style is trivially [1] (a given value is still checked)
+            fixed[f] = style_coords(model, f, given[f]) if f in given else np.ones(1)
+        elif f == "emotion" or f not in given:
+            inferred.append(f)
+            c = np.ones(K) if (f != "emotion" or prior is None) else np.asarray(prior, float)
+            if c.shape != (K,) or np.any(c <= 0):
+                raise BayesmotionError(f"prior must be {K} positive Dirichlet concentrations "
+                                       f"over {list(model.levels[f])}")
+            conc[f] = c
+        else:
+            fixed[f] = style_coords(model, f, given[f])
+    return fixed, conc, inferred
+
+
+def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=None,
+                  method: str = "emcee", seed: int = 0, n_walkers: int = 64, n_steps: int = 150,
+                  n_draws: int = 4, max_iter: int = 200, latent_uncertainty: bool = True,
+                  likelihood_power: float = 1.0,
+                  emotion_starts: str = "vertices") -> EmotionPosterior:
+    """Posterior over the emotion coordinates of an observed clip.
+
+    Args:
+        model: a FittedHGPDM, or a Posterior (the answer then pools ``n_draws`` draws).
+        clip: a Trial, one or two Motions, BVH path(s), or model-space poses (T, D) / (A, T, D).
+        frames: a slice or index array of frames to use (online inference: ``slice(0, k)``),
+            counted after the clip is resampled to the model's frame rate.
+        couple: the clip's couple (label or coordinates); inferred when None.
+        styles: other style factors of the clip that are known, factor -> label or coordinates
+            (e.g. ``{"content": "walk-left"}``); a factor neither given nor the emotion is
+            inferred alongside it.
+        prior: Dirichlet concentrations over the emotion levels (default flat, all ones).
+        method: "emcee" (the only sampler for now; NUTS is used for the model posterior).
+        seed: seeds the walkers.
+        n_walkers, n_steps: emcee settings. With a Posterior as ``model`` the steps are shared
+            out: each of the ``n_draws`` draws runs ``n_steps // n_draws + 50`` steps (the 50
+            covering each chain's burn-in), and their samples are pooled.
+        max_iter: L-BFGS iterations of the projection (per start). The default keeps a
+            20-frame handshake under 2 s (session 17, ``benchmarks/infer_speed.py``: median
+            1.54 s with "vertices", 0.54 s with "nearest"), but the projection usually stops
+            at this limit, not at an optimum; the benchmarks use 1000 (on one held-out
+            handshake the best optimum improved by 117 nats from 200 to 1000 iterations and
+            the label went from wrong to right).
+        latent_uncertainty: compute the diagonal Laplace sd of the latents.
+        likelihood_power: eta in the tempered posterior p(s) p(clip | s)^eta over the styles
+            (generalised Bayes). 1, the default, is the plain posterior. Below 1 widens it to
+            allow for model misspecification: with many frames the plain posterior is often
+            narrower than the distance from its mean to the true label. Choose eta from labelled
+            data with :func:`bayesmotion.evaluation.evaluate`.
+        emotion_starts: "vertices" (the default: one projection per level with the emotion
+            held at that level; the level of largest Laplace evidence of the latents is
+            chosen (bayesmotion.emotion.projection) and its latents and free emotion are refined
+            together; about K + 1 projections plus K Hessians), "nearest" (one projection from
+            the nearest training frames, about a third of the cost) or "levels" (that start
+            plus one per emotion level, from the nearest frames of that level's training
+            trials; the best optimum is kept; K + 1 times the projection's cost). A better
+            joint optimum is not always the right label: on the built-in handshakes "levels"
+            read two sad trials as neutral (91.7%, session 13); "vertices" compares every
+            level at its own optimum (24/24). On generated clips between two emotions (demo
+            model, s in {0, .25, .5, .75, 1}) its mean absolute error in s is 0.030
+            (neutral to happy) and 0.065 (sad to angry), against 0.054 and 0.45 with
+            "nearest" (session 17). With "vertices" ``info`` holds ``level_log_evidence``,
+            ``level_probabilities`` and the Laplace details per level.
+    Returns:
+        EmotionPosterior.
+    """
+    if emotion_starts not in ("nearest", "levels", "vertices"):
+        raise BayesmotionError(f"emotion_starts must be 'nearest', 'levels' or 'vertices', "
+                               f"got {emotion_starts!r}")
+    if method != "emcee":
+        raise BayesmotionError(f"method must be 'emcee', got {method!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
+        raise BayesmotionError(f"max_iter (L-BFGS iterations of the projection) must be a "
+                               f"positive integer, got {max_iter!r}")
+    if not (isinstance(likelihood_power, int | float | np.floating | np.integer)
+            and not isinstance(likelihood_power, bool)
+            and np.isfinite(likelihood_power) and likelihood_power > 0):
+        raise BayesmotionError(f"likelihood_power must be a positive finite number, got "
+                               f"{likelihood_power!r}")
+    given = _given_styles(model.model if isinstance(model, Posterior) else model, couple,
+                          styles)
+    if isinstance(model, Posterior):
+        idx = np.linspace(0, model.n_draws - 1, min(n_draws, model.n_draws)).astype(int)
+        parts = [_infer_one(model.model, model.predictor(int(i)), clip, frames, given, prior,
+                            seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
+                            latent_uncertainty and k == 0, likelihood_power, emotion_starts)
+                 for k, i in enumerate(idx)]
+        return pool_posteriors(parts)
+    return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
+                      n_steps, max_iter, latent_uncertainty, likelihood_power, emotion_starts)
+
+
+def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
+               latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices"):
+    import emcee
+
+    t0 = time.perf_counter()
+    stages, last = {}, [t0]
+
+    def stage(name):  # wall seconds per step, in info["stage_seconds"]
+        now = time.perf_counter()
+        stages[name] = now - last[0]
+        last[0] = now
+
+    Ys, mirrored = clip_poses_and_sides(model, clip)
+    if frames is not None:
+        ok = isinstance(frames, slice)
+        if not ok and not isinstance(frames, int | np.integer | str):
+            idx = np.asarray(frames)
+            ok = idx.ndim == 1 and idx.dtype.kind in "iu"
+        if not ok:
+            raise BayesmotionError(f"frames must be a slice or a 1-D integer index array of the "
+                                   f"clip's frames (counted at the model's {model.fps:g} fps), "
+                                   f"got {frames!r}")
+        Ys = [Y[frames] for Y in Ys]
+    T = Ys[0].shape[0]
+    o = model.spec.order
+    if T <= o:
+        raise BayesmotionError(f"the clip needs more than {o} frames, got {T}")
+    B = padded_length(T)
+    mask = jnp.asarray(np.arange(B) < T)
+    Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
+    fixed, conc, inferred = _style_setup(model, given, prior)
+    # given coordinates -> the kernels' style vectors (learned ones when the fit learned them)
+    fixed = dict(zip(fixed, style_vectors(P, list(fixed), list(fixed.values())), strict=True))
+    statics = {"int_factors": tuple(model.spec.interaction_factors),
+               "dyn_factors": tuple(model.spec.dynamics_factors),
+               "init_var": float(model.spec.priors.init_var)}
+    fixed_j = {k: jnp.asarray(v) for k, v in fixed.items()}
+    conc_j = {k: jnp.asarray(v) for k, v in conc.items()}
+    args = (P, Yp, mask, fixed_j, conc_j)
+    stage("encode")
+    levels_info = {}
+    if emotion_starts == "vertices":
+        params, res, fits, levels_info = _vertex_choice(model, P, Ys, B, T, args, statics,
+                                                       max_iter, inferred, conc)
+        # the chosen level's latents and the free styles together, from just inside its vertex:
+        # the clip's emotion may lie between levels (an interpolated clip: mean absolute error
+        # 0.03 over s in {0, .25, .5, .75, 1} on generated handshakes, 0.15 without this step)
+        params, res = minimize_scaled(params, args, statics, max_iter)
+    else:
+        starts = projection_starts(model, Ys, B, inferred, conc, emotion_starts)
+        fits = [project(p, args, statics, max_iter, inferred, conc) for p in starts]
+        params, res = min(fits, key=lambda pr: pr[1].fun)
+    stage("project")
+    latents = {"X": params["X"], "I": params["I"]}
+    sd = {}
+    if latent_uncertainty:
+        diag = diag_hessian(params, args, statics)  # exact, from coloured HVPs
+        sd = {f"{k}_sd": np.asarray(1.0 / jnp.sqrt(jnp.maximum(diag[k], 1e-12)))[..., :T, :]
+              for k in ("X", "I")}
+    stage("latent_sd")
+    free = tuple((f, len(model.levels[f])) for f in sorted(inferred))
+    keys = tuple(("u:" + f, K - 1) for f, K in free)
+    E = _expansion(latents, *args, **statics, free=free)
+    x0 = np.concatenate([np.asarray(params[k]) for k, _ in keys])
+    ndim = x0.size
+    W = max(n_walkers, 2 * ndim + 2)
+    W += W % 2
+    sty = (E, conc_j, jnp.asarray(float(likelihood_power)), statics["int_factors"],
+           statics["dyn_factors"], free)
+    if emotion_starts == "vertices":  # the styles' mode at the chosen level's latents
+        x0 = _style_mode(x0, sty)
+
+    def log_prob(xs):  # in emcee's half-ensemble chunks: one compilation
+        return in_halves(lambda x: _style_logp_batch(x, *sty), xs, W)
+
+    # Laplace start; variances capped at 1 in stick-breaking units (beyond that the style is
+    # barely identified and the quadratic approximation means little)
+    cov = capped_covariance(-np.asarray(_style_hessian(jnp.asarray(x0), *sty)), 1.0)
+    p0 = draw_start(lambda x: _style_logp_batch(x, *sty), x0, cov, W,
+                    np.random.default_rng(seed))
+    stage("expand")
+
+    # differential-evolution moves from a Laplace start: autocorrelation ~7 steps here, against
+    # ~20 for the default stretch move from a ball (measured on the demo's held-out trials)
+    sampler = emcee.EnsembleSampler(W, ndim, log_prob, vectorize=True,
+                                    moves=emcee.moves.DEMove())
+    state = emcee.State(p0, random_state=np.random.RandomState(seed).get_state())
+    sampler.run_mcmc(state, n_steps, progress=False)
+    burn = n_steps // 3
+    chain = sampler.get_chain(discard=burn)  # (steps, W, ndim)
+    lp = sampler.get_log_prob(discard=burn)
+    tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
+    styles = {}
+    start = 0
+    for k, n in keys:
+        u = chain[..., start:start + n]
+        s = np.asarray(style_to_simplex(jnp.asarray(u.reshape(-1, n))))
+        styles[k[2:]] = np.swapaxes(s.reshape(*u.shape[:2], n + 1), 0, 1)
+        start += n
+    stage("sample")
+    info = {"n_frames": T, "mirrored": mirrored,
+            "seconds": time.perf_counter() - t0, "stage_seconds": stages,
+            "tau": tau, "likelihood_power": float(likelihood_power),
+            "acceptance": float(np.mean(sampler.acceptance_fraction)),
+            "map_objective": float(res.fun), "map_iterations": int(res.nit),
+            "emotion_starts": emotion_starts, **levels_info,
+            "start_objectives": [float(r.fun) for _, r in fits],
+            "n_samples": int(chain.shape[0] * chain.shape[1]),
+            "ess": float(chain.shape[0] * chain.shape[1] / np.max(tau))}
+    lat = {"X": np.asarray(latents["X"])[:, :T], "I": np.asarray(latents["I"])[:T], **sd}
+    cl = "couple" in styles
+    loglik = None
+    if [f for f, _ in free] == ["emotion"]:  # the density over the emotion alone is exact
+        lsty = (E, statics["int_factors"], statics["dyn_factors"], free)
+        loglik = lambda W: np.asarray(_loglik_at_coords(jnp.asarray(W), *lsty))
+    return EmotionPosterior(tuple(model.levels["emotion"]), styles["emotion"], lat,
+                            np.swapaxes(lp, 0, 1),
+                            tuple(model.levels["couple"]) if cl else None,
+                            styles.get("couple"), info, loglik, np.asarray(conc["emotion"]))
+
+
+def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc):
+    """The emotion level with the largest posterior probability under the Laplace evidence of
+    each level (bayesmotion.emotion.projection) and the prior probability that the level
+    is the largest coordinate; its projection, with the free emotion set just inside its
+    vertex (the style sampler starts from the styles' mode at these latents)."""
+    out = project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc)
+    log_ev = np.array([o[2] for o in out])
+    logp = log_ev + np.log(_largest_prior(conc["emotion"]))
+    prob = np.exp(logp - logp.max())
+    k = int(np.argmax(logp))
+    K = log_ev.size
+    v = np.full(K, 0.03 / max(K - 1, 1))
+    v[k] = 0.97
+    params = {**out[k][0], "u:emotion": simplex_to_style(jnp.asarray(v)[None])[0]}
+    info = {"level_log_evidence": log_ev.tolist(),
+            "level_probabilities": (prob / prob.sum()).tolist(),
+            "level_objectives": [float(o[1].fun) for o in out],
+            "level_laplace": [o[3] for o in out]}
+    return params, out[k][1], [(o[0], o[1]) for o in out], info
+
+
+def _largest_prior(conc, n: int = 20000) -> np.ndarray:
+    """(K,) prior probability under Dirichlet(conc) that each coordinate is the largest (1/K
+    each for a symmetric prior; else a seeded Monte-Carlo estimate, floored at 1/n)."""
+    conc = np.asarray(conc, dtype=np.float64)
+    K = conc.size
+    if np.all(conc == conc[0]):
+        return np.full(K, 1.0 / K)
+    draws = np.random.default_rng(0).dirichlet(conc, n)
+    p = np.bincount(np.argmax(draws, 1), minlength=K) / n
+    return np.maximum(p, 1.0 / n) / np.maximum(p, 1.0 / n).sum()
+
+
+def _style_mode(x0, sty) -> np.ndarray:
+    """The mode of the free styles' log-density (expansion ``sty``, latents fixed) by L-BFGS
+    from ``x0``; ``x0`` itself if that fails to improve on it."""
+    def f(x):
+        v, g = _style_neg_vg(jnp.asarray(x), *sty)
+        return float(v), np.asarray(g, np.float64)
+
+    v0 = f(x0)[0]
+    res = scipy.optimize.minimize(f, np.asarray(x0, float), jac=True, method="L-BFGS-B",
+                                  options={"maxiter": 200})
+    return res.x if np.isfinite(res.fun) and res.fun <= v0 else np.asarray(x0, float)
+
+
+def infer_online(model, clip, *, start: int | None = None, step: int = 5, **kwargs):
+    """Yield an EmotionPosterior for growing prefixes of the clip (frames arriving online):
+    the first ``start`` frames (default order + 3), then ``step`` more at a time, frames counted
+    at the model's frame rate (the clip is resampled to it first)."""
+    if int(step) != step or step < 1:
+        raise BayesmotionError(f"step must be a positive number of frames, got {step!r}")
+    n = clip_poses(model, clip)[0].shape[0]
+    k = start or (model.spec.order + 3)
+    while True:
+        k = min(k, n)
+        yield infer_emotion(model, clip, frames=slice(0, k), **kwargs)
+        if k == n:
+            return
+        k += step

@@ -1,0 +1,2 @@
+"""Evaluation: leave-one-out emotion inference with calibration, and naturalness measures of
+motion (jerk, foot sliding, joint limits)."""

@@ -1,0 +1,137 @@
+"""arviz conversion, netCDF files and comparison of two posteriors (emcee vs NUTS)."""
+
+from __future__ import annotations
+
+import contextlib
+import warnings
+
+import numpy as np
+
+from bayesmotion.data.files import atomic_path
+
+
+def _dims(model) -> tuple[dict, dict]:
+    o = model.spec.order
+    coords = {
+        "gamma_dim": ["gamma1_signal", "gamma2_inv_ls", "gamma3_noise_prec"],
+        "beta_dim": ["beta1_signal", "beta2_inv_ls", "beta3_noise_prec"],
+        "alpha_dim": (["alpha_rbf"] + [f"alpha_ls_lag{l + 1}" for l in range(o)]
+                      + [f"alpha_lin_lag{l + 1}" for l in range(o)] + ["alpha_noise_prec"]),
+    }
+    dims = {"gamma": ["gamma_dim"], "beta": ["beta_dim"], "alpha": ["alpha_dim"]}
+    for f in model.spec.factors:
+        coords[f"{f}_level"] = list(model.levels[f])
+        coords[f"{f}_label"] = list(model.levels[f])
+        dims[f"style_{f}"] = [f"{f}_label", f"{f}_level"]  # vector of each label, coordinates
+    return coords, dims
+
+
+def to_inference_data(post):
+    """arviz InferenceData: posterior (chain = walker for emcee), sample_stats (lp,
+    acceptance), observed_data (training poses per actor)."""
+    import arviz as az
+
+    coords, dims = _dims(post.model)
+    C, D = post.chains.shape[:2]
+    acc = np.broadcast_to(np.asarray(post.acceptance)[:, None], (C, D))
+    observed = {f"Y_actor{a}": np.asarray(Y) for a, Y in enumerate(post.model.data.Y)}
+    for a in range(len(post.model.data.Y)):
+        dims[f"Y_actor{a}"] = ["frame", f"pose_dim_actor{a}"]
+    with warnings.catch_warnings():
+        # emcee runs many walkers (chains) of few draws; arviz warns about that shape
+        warnings.filterwarnings("ignore", message="More chains")
+        idata = _from_dict(az, post, coords, dims, acc, observed)
+    return idata
+
+
+def _from_dict(az, post, coords, dims, acc, observed):
+    return az.from_dict(
+        posterior=post.constrained(),
+        sample_stats={"lp": post.log_prob, "acceptance_rate": acc},
+        observed_data=observed,
+        coords=coords,
+        dims=dims,
+        attrs={"sampler": post.method, "inference_library": "bayesmotion",
+               "burn": int(post.info.get("burn", 0)), "thin": int(post.info.get("thin", 1))},
+    )
+
+
+def save_netcdf(idata, path) -> str:
+    """Write InferenceData to netCDF atomically (temp file, then rename)."""
+    with atomic_path(path) as tmp:  # usual permissions, removed on failure
+        idata.to_netcdf(str(tmp), engine="h5netcdf")
+    return str(path)
+
+
+def _theta(x):
+    """arviz Dataset of (chains, draws, ndim) draws; emcee has more walkers than draws, a shape
+    arviz warns about, so that one warning is silenced here."""
+    import arviz as az
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="More chains")
+        return az.convert_to_dataset({"theta": np.asarray(x)})
+
+
+@contextlib.contextmanager
+def arviz_without_numba():
+    """Run arviz diagnostics on its NumPy path. With numba installed, arviz 0.2x's numba path
+    of ``mcse(method="sd")`` (also inside ``az.summary``) fails under numpy >= 2.5: "only
+    0-dimensional arrays can be converted to Python scalars" (seen with arviz 0.23.4, numpy
+    2.5.2, numba installed). The flag is restored afterwards."""
+    from arviz.utils import Numba
+
+    was = Numba.numba_flag
+    Numba.numba_flag = False
+    try:
+        yield
+    finally:
+        Numba.numba_flag = was
+
+
+def compare_posteriors(a, b, var_names=None) -> dict:
+    """Compare two posteriors of the same target (e.g. emcee vs NUTS).
+
+    For every unconstrained coordinate: both means and both standard deviations, their
+    Monte-Carlo standard errors (arviz ``mcse``, methods "mean" and "sd"), the z-scores of the
+    differences, and the R-hat of the pooled chains of both methods (draws truncated to the
+    shorter run).
+
+    Returns:
+        dict with per-coordinate arrays and ``max_abs_z``, ``max_abs_z_sd``, ``max_rhat``.
+    """
+    import arviz as az
+
+    def ds(post, n=None):
+        x = post.chains if n is None else post.chains[:, -n:]
+        return _theta(x), x
+
+    n = min(a.chains.shape[1], b.chains.shape[1])
+    da, xa = ds(a)
+    db, xb = ds(b)
+    mean_a, mean_b = xa.mean((0, 1)), xb.mean((0, 1))
+    with arviz_without_numba():
+        se_a, se_b = (az.mcse(d)["theta"].values for d in (da, db))
+        sse_a, sse_b = (az.mcse(d, method="sd")["theta"].values for d in (da, db))
+    z = (mean_a - mean_b) / np.sqrt(se_a**2 + se_b**2)
+    sd_a, sd_b = xa.std((0, 1)), xb.std((0, 1))
+    z_sd = (sd_a - sd_b) / np.sqrt(sse_a**2 + sse_b**2)
+    pooled = np.concatenate([a.chains[:, -n:], b.chains[:, -n:]])
+    rhat = az.rhat(_theta(pooled))["theta"].values
+    return {"names": a.target.names, "mean_a": mean_a, "mean_b": mean_b, "mcse_a": se_a,
+            "mcse_b": se_b, "z": z, "sd_a": sd_a, "sd_b": sd_b, "mcse_sd_a": sse_a,
+            "mcse_sd_b": sse_b, "z_sd": z_sd, "rhat": rhat,
+            "max_abs_z": float(np.max(np.abs(z))), "max_abs_z_sd": float(np.max(np.abs(z_sd))),
+            "max_rhat": float(np.max(rhat))}
+
+
+def convergence(post) -> dict:
+    """max R-hat, min bulk and tail ESS over all sampled coordinates (unconstrained)."""
+    import arviz as az
+
+    d = _theta(post.chains)
+    with arviz_without_numba():
+        return {"max_rhat": float(az.rhat(d)["theta"].max()),
+                "min_ess_bulk": float(az.ess(d, method="bulk")["theta"].min()),
+                "min_ess_tail": float(az.ess(d, method="tail")["theta"].min()),
+                "mean_acceptance": float(np.mean(post.acceptance))}

@@ -1,0 +1,241 @@
+"""emcee runs of the posterior: one joint ensemble (in two phases with the independence
+move) or two ensembles over its factors; resumable from an HDF5 chain file."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from bayesmotion.errors import BayesmotionError
+from bayesmotion.inference.chainfile import ChainFile, open_h5
+from bayesmotion.inference.posterior import posterior_from_chain
+from bayesmotion.inference.proposals import (
+    adapt_steps,
+    default_moves,
+    idle_factor_modes,
+    independence_block,
+    mixture_proposal,
+    move_stats,
+    phase_stats,
+)
+from bayesmotion.inference.target import Target, in_halves, start_points
+
+
+def _n_walkers(n_walkers, ndim) -> int:
+    W = n_walkers or 2 * ndim + 2
+    W += W % 2
+    if W < 2 * ndim:
+        raise BayesmotionError(f"emcee needs at least 2 * ndim = {2 * ndim} walkers, got {W}")
+    return W
+
+
+def _open_backend(backend, name, W, ndim, log_prob):
+    """(emcee HDF5 backend or None, steps it already holds); a resumed file must hold a run of
+    this shape and of this posterior."""
+    if backend is None:
+        return None, 0
+    be = ChainFile(str(backend), name=name)
+    if be.initialized and be.iteration > 0:
+        if be.shape != (W, ndim):
+            raise BayesmotionError(f"backend {backend} holds a run of shape {be.shape} in its "
+                                   f"group {name!r}, this run needs {(W, ndim)}; use another "
+                                   f"file (a file of the joint sampler resumes with "
+                                   f"factorise=False)")
+        _check_resumed_density(be, log_prob, backend)
+        return be, be.iteration
+    be.reset(W, ndim)
+    return be, 0
+
+
+def _initial_state(start, seed):
+    import emcee
+
+    # seeded: emcee keeps its generator state in the State (and the backend)
+    return emcee.State(start, random_state=np.random.RandomState(seed).get_state())
+
+
+def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, progress, init,
+               ball, moves, hmc=False, independence=False):
+    """One ensemble over every sampled coordinate. With ``independence``, in two phases: the
+    adaptation (its independence proposal is the Laplace approximation) and the rest (the
+    proposal is the adaptation's sample moments), each a fixed kernel; a resumed file continues
+    in the phase where it stopped, the second phase's proposal recomputed from the file."""
+    import emcee
+
+    W = _n_walkers(n_walkers, target.ndim)
+
+    def log_prob(xs):
+        return in_halves(target.logp_batch, xs, W)
+
+    be, done = _open_backend(backend, "mcmc", W, target.ndim, log_prob)
+    be = emcee.backends.Backend() if be is None else be  # shared by the phases
+    cov, n_adapt = None, 0
+    if backend is not None:
+        n_adapt = _adapt_record(backend, done, adapt_steps(n_steps) if independence else None)
+    elif independence:
+        n_adapt = adapt_steps(n_steps)
+    modes = None
+    if independence:
+        cov = target.laplace(centre)
+        block = independence_block(target, cov)
+        modes = idle_factor_modes(target, centre, cov, block)
+
+        def phase_moves(first: bool):
+            if first:
+                return default_moves(target, hmc, mixture_proposal(block, modes))
+            z = be.get_chain()[n_adapt // 3:n_adapt][..., block].reshape(-1, block.size)
+            return default_moves(target, hmc, mixture_proposal(block, modes, z))
+
+        # (a resumed file's stored adaptation may be longer than this call's n_steps)
+        phases = ([(min(n_adapt, n_steps), True), (n_steps, False)] if n_adapt
+                  else [(n_steps, True)])
+    else:
+        phases = [(n_steps, None)]
+
+        def phase_moves(_):
+            return default_moves(target, hmc) if moves is None else moves
+
+    t0 = time.perf_counter()
+    ran = []  # (moves, steps) of each phase run by this call
+    for end, which in phases:
+        if done >= end:
+            continue
+        used = phase_moves(which)
+        ran.append((used, end - done))
+        sampler = emcee.EnsembleSampler(W, target.ndim, log_prob, vectorize=True, backend=be,
+                                        moves=used)
+        if done:
+            sampler.run_mcmc(None, end - done, progress=progress)
+        else:
+            start = start_points(target, centre, W, init, ball, np.random.default_rng(seed),
+                                  cov)
+            sampler.run_mcmc(_initial_state(start, seed), end, progress=progress)
+        done = end
+    seconds = time.perf_counter() - t0
+    info = {"seconds": seconds, "factorised": False, **phase_stats(ran)}
+    if independence:
+        info["adapt_steps"] = n_adapt
+        info["modes"] = [{"weight": m["weight"], "logp": m["logp"],
+                          "log_evidence": m["log_evidence"], "searched_from": m["searched_from"],
+                          "x": m["x"].tolist()} for m in modes]
+    return posterior_from_chain(target, be.get_chain(), be.get_log_prob(), be.accepted / max(be.iteration, 1),
+                   burn, thin, info, min_burn=n_adapt)
+
+
+ADAPT_ATTR = "bayesmotion_adapt_steps"
+
+
+def _adapt_record(backend, done: int, n_adapt: int | None) -> int:
+    """The adaptation length a backend file's run uses, stored with its chain (so a run resumed
+    with another ``n_steps`` switches proposals where the first did); ``None``: this run uses no
+    independence move. A resumed file must have been written with the same choice."""
+    with open_h5(backend, "r") as f:
+        attrs = f["mcmc"].attrs
+        stored = int(attrs[ADAPT_ATTR]) if ADAPT_ATTR in attrs else None
+    if done and (stored is None) != (n_adapt is None):
+        flag = "False (CLI: --no-independence)" if stored is None else "True (the default)"
+        raise BayesmotionError(
+            f"backend {backend} was written {'without' if stored is None else 'with'} the "
+            f"independence move (files written before it existed have none); resume it with "
+            f"independence={flag}")
+    if n_adapt is None:
+        return 0
+    if done:
+        return stored
+    with open_h5(backend, "a") as f:
+        f["mcmc"].attrs[ADAPT_ATTR] = n_adapt
+    return n_adapt
+
+
+def planned_adapt(backend, n_steps: int) -> int:
+    """The adaptation length a run will use: a resumed file's, else this run's."""
+    if backend is not None and os.path.exists(str(backend)):
+        with open_h5(backend, "r") as f:  # waits for a reader's lock; names a foreign file
+            attrs = f["mcmc"].attrs if "mcmc" in f else {}
+            if ADAPT_ATTR in attrs and int(attrs.get("iteration", 0)) > 0:
+                return int(attrs[ADAPT_ATTR])
+    return adapt_steps(n_steps)
+
+
+def run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend, progress,
+                    init, ball, moves, gamma_every, hmc=False):
+    """Two independent ensembles, one per factor of p(gamma | Y, X) p(beta, alpha, S | X, I).
+
+    The upper ensemble (beta, alpha, styles) takes ``n_steps`` steps and never evaluates the
+    bottom layer; the bottom ensemble (gamma, 3 coordinates) takes one step for every
+    ``gamma_every`` of them. Output step t pairs upper step t with bottom step
+    ``t // gamma_every``, walker by walker. As the factors are independent, this is the chain
+    of a valid composite kernel on the joint posterior (the gamma update is applied every
+    ``gamma_every`` steps): its draws, autocorrelation times and diagnostics are those of the
+    joint chain, with gamma's held values counted as the repeats they are.
+    """
+    import emcee
+
+    model = target.model
+    up = Target(model, target.jitter, "upper")
+    bot = Target(model, target.jitter, "bottom")
+    iu = np.array([target.names.index(n) for n in up.names])
+    ib = np.array([target.names.index(n) for n in bot.names])
+    # as many walkers as the joint sampler by default (the demo-size runs used 48 and 54)
+    W = _n_walkers(n_walkers or 2 * target.ndim + 2, up.ndim)
+
+    def lp_up(xs):
+        return in_halves(up.logp_batch, xs, W)
+
+    def lp_bot(xs):
+        return in_halves(bot.logp_batch, xs, W)
+
+    be_up, done_up = _open_backend(backend, "mcmc", W, up.ndim, lp_up)
+    be_bot, done_bot = _open_backend(backend, "gamma", W, bot.ndim, lp_bot)
+    n_steps = max(n_steps, done_up)  # a file holding more steps returns them all (as joint)
+    n_bot = -(-n_steps // gamma_every)
+    moves_up = default_moves(up, hmc) if moves is None else moves
+    moves_bot = default_moves(bot, hmc=False)  # DE: gamma has no style coordinates
+    s_up = emcee.EnsembleSampler(W, up.ndim, lp_up, vectorize=True, backend=be_up,
+                                 moves=moves_up)
+    s_bot = emcee.EnsembleSampler(W, bot.ndim, lp_bot, vectorize=True, backend=be_bot,
+                                  moves=moves_bot)
+    start = None
+    if not (done_up and done_bot):
+        start = start_points(target, centre, W, init, ball, np.random.default_rng(seed))
+    init_up = s_up._previous_state if done_up else _initial_state(start[:, iu], seed)
+    init_bot = s_bot._previous_state if done_bot else _initial_state(start[:, ib], seed + 1)
+    t0 = time.perf_counter()
+    gen_up = s_up.sample(init_up, iterations=max(0, n_steps - done_up), progress=progress)
+    gen_bot = s_bot.sample(init_bot, iterations=max(0, n_bot - done_bot))
+    for t in range(done_up, n_steps):  # interleaved, so a killed run leaves both files current
+        next(gen_up)
+        while done_bot < min(n_bot, t // gamma_every + 1):
+            next(gen_bot)
+            done_bot += 1
+    for _ in gen_bot:  # the bottom steps still missing when the upper chain was complete
+        pass
+    for _ in gen_up:  # close the generators (each saves a step before it yields it)
+        pass
+    seconds = time.perf_counter() - t0
+    c_up, c_bot = s_up.get_chain()[:n_steps], s_bot.get_chain()[:n_bot]
+    l_up, l_bot = s_up.get_log_prob()[:n_steps], s_bot.get_log_prob()[:n_bot]
+    held = np.arange(n_steps) // gamma_every
+    chain = np.empty((n_steps, W, target.ndim))
+    chain[..., iu], chain[..., ib] = c_up, c_bot[held]
+    return posterior_from_chain(target, chain, l_up + l_bot[held], s_up.acceptance_fraction, burn, thin,
+                   {"seconds": seconds, "factorised": True, "gamma_every": gamma_every,
+                    "bottom_acceptance": np.asarray(s_bot.acceptance_fraction),
+                    **move_stats(moves_up)})
+
+
+def _check_resumed_density(be, log_prob, backend) -> None:
+    """A resumed run continues from the log-densities stored with its last step; they must be
+    this posterior's. Recomputed at the stored walkers, they differ (by hundreds of nats) when
+    the file was written for another model, e.g. a refit of the same size; the style rotations
+    carry the stored values forward by increments, hence the small tolerance."""
+    last = be.get_last_sample()
+    fresh = log_prob(np.asarray(last.coords))
+    stored = np.asarray(last.log_prob, dtype=np.float64)
+    if not np.allclose(fresh, stored, rtol=1e-7, atol=1e-6, equal_nan=True):
+        worst = float(np.nanmax(np.abs(fresh - stored)))
+        raise BayesmotionError(f"backend {backend} holds a run of another posterior: its stored "
+                               f"log-densities differ from this model's by up to {worst:.3g} "
+                               f"nats at the same walkers; use another file")

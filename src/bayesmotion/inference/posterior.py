@@ -1,0 +1,179 @@
+"""The Bayesian layer: MCMC over hyperparameters and training style vectors.
+
+Sampled: ``theta = (log gamma, log beta, log alpha, u_f for each style factor f)``, where
+``u_f: (K_f, K_f - 1)`` maps to one style vector per level on the simplex by stick-breaking (each
+training trial uses the vector of its label, as in Wang et al.'s multifactor model).
+Held at their MAP values: the latents X and I. The target density, in unconstrained space, is
+
+    log p(theta | Y, X, I) = sum_a log N(Y_a | 0, K_Y(X_a; gamma))
+                             + log N([X_1 X_2] | 0, K_X(I, S; beta))
+                             + log N(I_out | 0, K_I(I_in, S; alpha)) + log N(I_first | 0, v0)
+                             + sum log Normal(log theta_h | log m_h, sigma)      (hyperparameters)
+                             + sum_k log Dirichlet(s_k | 1 + kappa onehot(k))    (each level k)
+                             + sum_k log |det d s_k / d u_k|                      (stick-breaking)
+                             + const,
+
+i.e. :class:`bayesmotion.model.logpost` with the latents fixed. emcee receives it jitted
+and ``vmap``-ped over walkers (``vectorize=True``); NUTS (numpyro) gets the same potential.
+emcee's default moves: differential evolution, exact rotations along the style vectors'
+symmetry orbits (:mod:`bayesmotion.inference.moves`), and an independence Metropolis step on the
+hyperparameters, whose proposal adapts once (see ``sample_posterior(independence=...)``).
+Only the first line and gamma's prior term depend on gamma, and they depend on nothing else that
+is sampled: the posterior is the product p(gamma | Y, X) p(beta, alpha, S | X, I), and with
+``factorise=True`` emcee samples the two factors with separate ensembles.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bayesmotion.errors import BayesmotionError
+from bayesmotion.inference.diagnostics import arviz_without_numba, save_netcdf, to_inference_data
+from bayesmotion.inference.predictive import generate_posterior
+from bayesmotion.inference.target import Target
+from bayesmotion.model.params import STYLE_PREFIX, style_to_simplex
+from bayesmotion.model.predict import condition
+
+
+class ChainTooShortWarning(UserWarning):
+    """The chain is shorter than 50 integrated autocorrelation times (emcee's rule)."""
+
+
+@dataclass(eq=False)
+class Posterior:
+    """Posterior draws of (gamma, beta, alpha, training style vectors) given the MAP latents.
+
+    Attributes:
+        model: the FittedHGPDM.
+        target: the sampled density.
+        chains: (n_chains, n_draws, ndim) unconstrained draws after burn-in and thinning.
+        log_prob: (n_chains, n_draws).
+        acceptance: (n_chains,) acceptance fraction (emcee; with the factorised sampler that
+            of the (beta, alpha, styles) ensemble, gamma's in ``info["bottom_acceptance"]``) or
+            mean acceptance prob (NUTS).
+        method: "emcee" or "nuts".
+        info: tau, burn, thin, seconds, n_steps, warnings.
+    """
+
+    model: object
+    target: Target
+    chains: np.ndarray
+    log_prob: np.ndarray
+    acceptance: np.ndarray
+    method: str
+    info: dict = field(default_factory=dict)
+    _idata: object = None
+    _predictors: dict = field(default_factory=dict)
+
+    @property
+    def n_draws(self) -> int:
+        return self.chains.shape[0] * self.chains.shape[1]
+
+    def flat(self) -> np.ndarray:
+        """(n_chains * n_draws, ndim) unconstrained draws."""
+        return self.chains.reshape(-1, self.chains.shape[-1])
+
+    def constrained(self) -> dict[str, np.ndarray]:
+        """name -> (n_chains, n_draws, ...) gamma, beta, alpha and style_<factor>."""
+        C, D, _ = self.chains.shape
+        vmapped = jax.jit(jax.vmap(lambda x: _constrain(self.target.unravel(x))))
+        out = vmapped(jnp.asarray(self.flat()))
+        return {k: np.asarray(v).reshape(C, D, *v.shape[1:]) for k, v in out.items()}
+
+    def params(self, i: int) -> dict:
+        """Full parameter dict (with the MAP latents) of flat draw ``i``."""
+        return self.target.full(self.flat()[i])
+
+    @property
+    def idata(self):
+        if self._idata is None:
+            self._idata = to_inference_data(self)
+        return self._idata
+
+    def summary(self, **kwargs):
+        """arviz summary (mean, sd, HDI, MCSE, bulk/tail ESS, R-hat) of constrained values."""
+        import arviz as az
+
+
+        with arviz_without_numba():
+            return az.summary(self.idata, **kwargs)
+
+    def plot_trace(self, var_names=None, **kwargs):
+        import arviz as az
+
+        return az.plot_trace(self.idata, var_names=var_names, **kwargs)
+
+    def plot_pair(self, var_names=("gamma", "beta", "alpha"), **kwargs):
+        import arviz as az
+
+        return az.plot_pair(self.idata, var_names=list(var_names), **kwargs)
+
+    def to_netcdf(self, path) -> str:
+        return save_netcdf(self.idata, path)
+
+    def predictor(self, i: int):
+        """The model conditioned on draw i (cached)."""
+        if i not in self._predictors:
+            self._predictors[i] = condition(self.model, self.params(i), self.target.jitter)
+        return self._predictors[i]
+
+    def generate(self, emotion="neutral", couple=None, n_frames=100, n_samples=0, start=None,
+                 seed=0, n_draws: int = 16, **styles):
+        """Posterior-predictive generation; see :func:`bayesmotion.inference.predictive`."""
+        return generate_posterior(self, emotion, couple, n_frames, n_samples, start, seed,
+                                  n_draws, **styles)
+
+
+def _constrain(p: dict) -> dict:
+    out = {k[4:]: jnp.exp(v) for k, v in p.items() if k.startswith("log_")}
+    for k, v in p.items():
+        if k.startswith(STYLE_PREFIX):
+            out["style_" + k[len(STYLE_PREFIX):]] = style_to_simplex(v)  # (K, K)
+    return out
+
+
+def posterior_from_chain(target, chain, lp, acceptance, burn, thin, info, min_burn: int = 0):
+    """Burn-in and thinning from the integrated autocorrelation time of the whole chain; the
+    burn-in covers at least ``min_burn`` steps (an adaptation)."""
+    import emcee
+
+    # a walker that never moved in some coordinate makes emcee's autocorrelation 0/0: that
+    # coordinate's tau is then NaN, and burn_thin reports the chain as too short
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
+    bt = burn_thin(tau, chain.shape[0], burn, thin, min_burn)
+    sel = slice(bt["burn"], None, bt["thin"])
+    return Posterior(target.model, target, np.swapaxes(chain[sel], 0, 1),
+                     np.swapaxes(lp[sel], 0, 1), np.asarray(acceptance), "emcee",
+                     {**bt, "tau": tau, "n_walkers": chain.shape[1], "n_steps": chain.shape[0],
+                      **info})
+
+
+def burn_thin(tau, n_steps, burn, thin, min_burn: int = 0):
+    info = {}
+    tmax = float(np.nanmax(tau)) if np.all(np.isfinite(tau)) else float("inf")
+    if n_steps < 50 * tmax:
+        msg = (f"chain of {n_steps} steps is shorter than 50 autocorrelation times "
+               f"(max tau ~ {tmax:.0f}): the estimates are unreliable; run longer")
+        warnings.warn(msg, ChainTooShortWarning, stacklevel=3)
+        info["warning"] = msg
+    if burn is None:
+        burn = int(min(2 * tmax, n_steps // 2)) if np.isfinite(tmax) else n_steps // 2
+        burn = max(burn, min_burn)
+    elif burn < min_burn:
+        raise BayesmotionError(f"burn ({burn}) must cover the independence move's {min_burn} "
+                               f"adaptation steps (as NUTS's warm-up); pass burn >= {min_burn}, "
+                               f"or independence=False")
+    if thin is None:
+        thin = max(1, int(0.5 * np.nanmin(tau))) if np.all(np.isfinite(tau)) else 1
+    if burn >= n_steps:
+        raise BayesmotionError(f"burn ({burn}) must be smaller than the {n_steps} steps")
+    info.update(burn=int(burn), thin=int(thin))
+    return info
+
+

@@ -1,0 +1,138 @@
+from __future__ import annotations
+
+from bayesmotion.errors import BayesmotionError
+from bayesmotion.inference.emcee_runner import planned_adapt, run_emcee, run_factorised
+from bayesmotion.inference.nuts import run_nuts
+from bayesmotion.inference.posterior import Posterior
+from bayesmotion.inference.target import Target
+
+
+# --------------------------------------------------------------------------- samplers
+def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
+                     burn: int | None = None, thin: int | None = None, seed: int = 0,
+                     backend=None, progress: bool = True, method: str = "emcee",
+                     n_chains: int = 2, init: str = "laplace", ball: float = 1e-3,
+                     moves=None, factorise: bool = False, gamma_every: int = 4,
+                     hmc: bool = False, independence: bool | None = None) -> Posterior:
+    """Sample the posterior over hyperparameters and training style vectors.
+
+    Args:
+        fitted: a FittedHGPDM.
+        n_walkers: emcee walkers (default ``2 * ndim + 2``, even, ndim counting every
+            sampled coordinate). When ``factorise``, both ensembles have this many walkers.
+        n_steps: emcee steps per walker (NUTS: samples per chain after as many warm-up steps).
+        burn, thin: discarded leading steps and thinning; by default chosen from the integrated
+            autocorrelation time tau (burn = 2 max tau, thin = max(1, min tau / 2)). NUTS:
+            ``burn`` is the number of warm-up (adaptation) steps, default ``n_steps``; 0 means
+            no step-size or mass-matrix adaptation.
+        seed: seeds the walker ball, the moves and NUTS.
+        backend: path of an emcee HDF5 file. An existing file with the same dimensions is resumed
+            from its last step until it holds ``n_steps`` steps (nothing already saved is lost).
+            Other processes may read it meanwhile: a save waits for their lock
+            (:mod:`bayesmotion.inference.chainfile`).
+        progress: progress bars.
+        method: "emcee" or "nuts".
+        n_chains: NUTS chains.
+        init: where the walkers (NUTS: chains) start. ``"laplace"`` (default) draws them from
+            the Laplace approximation at the conditional MAP (inverse Hessian), so the ensemble
+            starts about as wide as the posterior: differential-evolution moves scale with the
+            ensemble's spread, so a tight ball first spends many steps expanding (burn-in).
+            ``"ball"``: a Gaussian ball of radius ``ball`` (unconstrained units).
+        moves: emcee moves (default: ``emcee.moves.DEMove()``, mixing faster than the stretch
+            move in tens of dimensions, each step followed by exact Metropolis steps along the
+            style vectors' rotation orbits, where the likelihood is constant:
+            :class:`bayesmotion.inference.moves`; then the independence step, see
+            ``independence``). When ``factorise``, the moves of the
+            (beta, alpha, styles) ensemble, whose coordinates are the target's without gamma's
+            (``Target(fitted, block="upper")``); gamma's ensemble always uses DE.
+        factorise: with the latents fixed the posterior factorises, p(gamma | Y, X)
+            p(beta, alpha, S | X, I): gamma enters only the bottom layer, the most expensive
+            one. ``True`` samples the factors with two independent ensembles, so the
+            slow-mixing one (beta, alpha, styles) never evaluates the bottom layer, and updates
+            gamma once every ``gamma_every`` steps; output step t pairs the two chains' walkers
+            at steps t and t // gamma_every. ``False`` (default): one ensemble over every
+            coordinate. At the demo size the factorised steps cost 0.31-0.34 s against 0.46 s,
+            but two 7,000-step factorised chains mixed worse per step than the joint one (max
+            R-hat 1.20 and 1.25, min bulk ESS 171 and 164, against 1.12 and 298), so the joint
+            sampler stays the default.
+        gamma_every: steps of the upper chain per step of the gamma chain.
+        hmc: add, after the default moves, two ensemble-preconditioned HMC steps
+            (:class:`bayesmotion.inference.moves`): one on the coordinates the style
+            rotations do not move (the hyperparameters and two-level style vectors: nearly
+            Gaussian but strongly correlated, where DE crawls, autocorrelation time ~300 steps
+            at the demo size), one on the rotated style vectors (heavy-tailed: smaller steps).
+            A step costs about 18x a DE step at the demo size (8.4 s against 0.46 s: about 4
+            gradients per walker and block). In a 60-step demo-size probe (session 18) the
+            hyperparameters reached R-hat 1.09-1.28 and bulk ESS 180-440 after 40 kept steps,
+            which the default moves reach only after thousands; per second the slowest
+            coordinate (an emotion style coordinate, R-hat 1.57, ESS 113) was no better than
+            the default's at 1,000 steps. Not the default until a long run shows the gain.
+        independence: add, after DE and the rotations, an independence Metropolis step
+            (:class:`bayesmotion.inference.moves`) on the coordinates the rotations do not
+            move, plus the rotated ones the likelihood pins (Laplace sd < 0.1): a multivariate t (20
+            degrees of freedom) proposal from the Laplace approximation at the conditional MAP for
+            the first min(150, n_steps // 4) steps, then from the sample mean and covariance of that
+            adaptation's last two thirds (every walker pooled). Each phase is a fixed kernel; the
+            adaptation is part of the burn-in (``burn`` must cover it, as NUTS's warm-up), and a
+            file resumed with ``backend`` switches where its first run did. One more log-density per
+            walker and step (at the demo size 0.74 s per step against 0.46 s). ``None`` (default):
+            on for the joint emcee sampler with the default moves, off otherwise; ``True`` with
+            ``method="nuts"``, user ``moves`` or ``factorise`` raises. At the demo size (session 19,
+            54 walkers, ``benchmarks/posterior_convergence.py``) 28% of the second phase's proposals
+            were accepted, and 1,000 steps (743 s) gave max R-hat 1.067 and min bulk ESS 527, where
+            DE and the rotations alone needed 7,000 steps (3,211 s) for 1.12 and 298; R-hat stayed
+            at 1.07-1.09 up to 2,000 steps (walkers stuck on the couple style). Where a
+            two-level style factor has a second local mode (its vectors near the simplex's
+            centre, the factor idle; :func:`idle_factor_modes` searches for one per factor, at
+            the cost of one more conditional MAP and Laplace approximation), the proposal is a
+            mixture with one t per mode (weights from their Laplace evidence, each at least
+            0.05; in the second phase each mode's moments come from the adaptation's states
+            nearest it), so a walker jumps between the modes in one accepted step.
+
+    Returns:
+        a Posterior. A ``ChainTooShortWarning`` is issued when the chain is shorter than 50
+        autocorrelation times.
+    """
+    if burn is not None and (burn < 0 or (method == "emcee" and burn >= n_steps)):
+        # emcee discards burn of its n_steps; NUTS warms up for burn steps before n_steps draws
+        raise BayesmotionError(f"burn must be in [0, n_steps = {n_steps}) for emcee and >= 0 "
+                               f"for NUTS, got {burn}")
+    if hmc and method != "emcee":
+        raise BayesmotionError(f"hmc=True adds HMC steps to emcee's moves; method={method!r} "
+                               f"does not use them (NUTS is already Hamiltonian)")
+    if hmc and moves is not None:
+        raise BayesmotionError("hmc=True adds EnsembleHMC to the default moves; with your own "
+                               "moves, add bayesmotion.inference.moves to them instead")
+    if independence and (method != "emcee" or moves is not None or factorise):
+        raise BayesmotionError("independence=True adds steps to the joint emcee sampler's "
+                               "default moves; it does not apply with method='nuts', your own "
+                               "moves or factorise=True (add bayesmotion.inference.moves "
+                               "to your moves instead)")
+    if independence is None:
+        independence = method == "emcee" and moves is None and not factorise
+    if independence and method == "emcee":
+        n_adapt = planned_adapt(backend, n_steps)
+        if n_steps <= n_adapt:
+            raise BayesmotionError(f"n_steps ({n_steps}) must exceed the {n_adapt} adaptation "
+                                   f"steps of the run stored in {backend}")
+        if burn is not None and burn < n_adapt:
+            raise BayesmotionError(f"burn ({burn}) must cover the independence move's {n_adapt} "
+                                   f"adaptation steps (as NUTS's warm-up); pass burn >= "
+                                   f"{n_adapt}, or independence=False")
+    if int(gamma_every) != gamma_every or gamma_every < 1:
+        raise BayesmotionError(f"gamma_every must be a positive integer, got {gamma_every!r}")
+    target = Target(fitted)
+    centre, cdiag = target.conditional_map(progress=False)
+    if method == "emcee" and factorise:
+        post = run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend,
+                               progress, init, ball, moves, int(gamma_every), hmc)
+    elif method == "emcee":
+        post = run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend,
+                          progress, init, ball, moves, hmc, independence)
+    elif method == "nuts":
+        post = run_nuts(target, centre, n_steps, burn, thin, seed, progress, n_chains, init,
+                         ball)
+    else:
+        raise BayesmotionError(f"method must be 'emcee' or 'nuts', got {method!r}")
+    post.info["conditional_map"] = {k: cdiag[k] for k in ("objective", "iterations", "converged")}
+    return post

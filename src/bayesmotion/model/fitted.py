@@ -1,0 +1,182 @@
+"""FittedHGPDM: a fitted model (immutable), its training-trial records and accessors."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bayesmotion.data.motion import MotionDataset
+from bayesmotion.data.skeleton import Skeleton
+from bayesmotion.errors import BayesmotionError
+from bayesmotion.model.archive import save_model
+from bayesmotion.model.data import ModelData, encode_trial
+from bayesmotion.model.generate import generate
+from bayesmotion.model.logpost import LogPosterior, constrained, trial_styles
+from bayesmotion.model.predict import condition
+
+if TYPE_CHECKING:
+    from bayesmotion.model.spec import HGPDM
+
+
+class TrialRecord(NamedTuple):
+    """What a fitted model remembers of each training trial.
+
+    Attributes:
+        name: trial name.
+        labels: factor -> level.
+        n_frames: frames in the trial.
+        anchors: per actor, the decoding anchor (see PoseCodec.encode).
+        offsets: per actor, (J, 3) bone offsets of that actor's skeleton.
+    """
+
+    name: str
+    labels: dict
+    n_frames: int
+    anchors: tuple
+    offsets: tuple
+
+
+def trial_records(dataset: MotionDataset, codecs, root_mode) -> tuple[TrialRecord, ...]:
+    out = []
+    for t in dataset:
+        enc = encode_trial(codecs, t, root_mode)
+        out.append(TrialRecord(t.name, dict(t.labels), t.n_frames,
+                               tuple(np.asarray(e.anchor) for e in enc),
+                               tuple(np.asarray(m.skeleton.offsets) for m in t.actors)))
+    return tuple(out)
+
+
+@dataclass(frozen=True, eq=False)
+class FittedHGPDM:
+    """A hierarchical GPDM at its MAP estimate.
+
+    Attributes:
+        spec: the resolved HGPDM specification.
+        params: unconstrained MAP parameters (see bayesmotion.model.params).
+        codecs: per actor slot, the codec between motions and Y (a PoseCodec, or an
+            AffectiveCodec for ``pose_space="affective"``).
+        levels: factor -> ordered level names.
+        data: the training data the posterior conditions on.
+        trials: per training trial, a TrialRecord.
+        fps: frame rate of the training data.
+        diagnostics: convergence diagnostics of the fit.
+    """
+
+    spec: HGPDM
+    params: dict
+    codecs: tuple
+    levels: dict
+    data: ModelData
+    trials: tuple
+    fps: float
+    diagnostics: dict = field(default_factory=dict)
+    _cache: dict = field(default_factory=dict, init=False, repr=False)
+
+    # ------------------------------------------------------------------ accessors
+    @property
+    def n_actors(self) -> int:
+        return len(self.codecs)
+
+    @property
+    def log_posterior_fn(self) -> LogPosterior:
+        return LogPosterior(self.spec, self.data)
+
+    def _jitted(self, name: str):
+        """The log-posterior's ``__call__`` / ``layer_terms``, jitted once per model (run
+        eagerly, op by op, they spend seconds compiling every operation)."""
+        key = "jit_" + name
+        if key not in self._cache:
+            lp = self.log_posterior_fn
+            self._cache[key] = jax.jit(lp if name == "call" else getattr(lp, name))
+        return self._cache[key]
+
+    def log_posterior(self, params: dict | None = None, jitter: float = 1e-8) -> float:
+        """Joint log-posterior (eq. 12) at ``params`` (default: the MAP)."""
+        p = self.params if params is None else params
+        return float(self._jitted("call")({k: jnp.asarray(v) for k, v in p.items()}, jitter))
+
+    def layer_terms(self, jitter: float = 1e-8) -> dict[str, float]:
+        terms = self._jitted("layer_terms")(
+            {k: jnp.asarray(v) for k, v in self.params.items()}, jitter)
+        return {k: float(v) for k, v in terms.items()}
+
+    @property
+    def hyperparameters(self) -> dict[str, np.ndarray]:
+        """gamma, beta, alpha (constrained, positive)."""
+        return {k: np.asarray(v) for k, v in constrained(self.params).items()}
+
+    def styles(self) -> dict[str, np.ndarray]:
+        """factor -> (R, K_f) style vector of every training trial (its level's vector)."""
+        return {k: np.asarray(v) for k, v in trial_styles(self.params, self.data).items()}
+
+    def trial_slices(self) -> list[slice]:
+        ends = np.cumsum(self.data.lengths)
+        return [slice(int(e - n), int(e)) for e, n in zip(ends, self.data.lengths, strict=True)]
+
+    def latents(self, trial: int) -> dict[str, np.ndarray]:
+        """X (A, T, Q_X) and I (T, Q_I) of training trial ``trial``."""
+        sl = self.trial_slices()[trial]
+        return {"X": np.asarray(self.params["X"][:, sl]), "I": np.asarray(self.params["I"][sl])}
+
+    def skeleton(self, actor: int = 0, trial: int | None = None) -> Skeleton:
+        """The skeleton of an actor slot, with the bone offsets of a training trial."""
+        sk = self.codecs[actor].skeleton
+        if trial is None:
+            return sk
+        key = ("skeleton", actor, trial)  # skeletons are immutable: build each one once
+        if key not in self._cache:
+            self._cache[key] = sk.with_offsets(self.trials[trial].offsets[actor])
+        return self._cache[key]
+
+    def level_index(self, factor: str, level: str) -> int:
+        if factor not in self.levels:
+            raise BayesmotionError(f"model has no style factor {factor!r}; it has "
+                                   f"{list(self.levels)}")
+        if level not in self.levels[factor]:
+            raise BayesmotionError(f"unknown {factor} {level!r}; the model knows "
+                                   f"{list(self.levels[factor])}")
+        return self.levels[factor].index(level)
+
+    def with_params(self, params: dict) -> FittedHGPDM:
+        return replace(self, params={k: np.asarray(v) for k, v in params.items()})
+
+    def predictor(self):
+        """Every layer conditioned on the training data at the MAP (cached: the parameters of
+        a fitted model never change; :meth:`with_params` returns a new model)."""
+        if "predictor" not in self._cache:
+            self._cache["predictor"] = condition(self)
+        return self._cache["predictor"]
+
+    # ------------------------------------------------------------------ generation
+    def generate(self, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,
+                 start=None, seed: int = 0, **styles):
+        """Generate motion top-down with predictive uncertainty.
+
+        Args:
+            emotion: a level name, a coordinate vector over the emotion levels (convex
+                combinations interpolate; anything off the simplex extrapolates and is flagged
+                in ``Rollout.extrapolated``), a (T, K) array, or a ``Transition``.
+            couple: likewise for the couple factor (default: the first couple).
+            n_frames: frames to generate, including the ``order`` start frames.
+            n_samples: stochastic rollouts drawn from the dynamics' predictive distribution.
+            start: training-trial index (default: the first trial with the requested labels),
+                ``"prior"`` (zero latent state), or an (order, Q_I) latent array.
+            seed: PRNG seed of the samples.
+            **styles: values for any other style factor of the model.
+        Returns:
+            a :class:`bayesmotion.model.generate`.
+        """
+        return generate(self, emotion, couple, n_frames, n_samples, start, seed, **styles)
+
+    # ------------------------------------------------------------------ files
+    def save(self, path) -> None:
+        """Write the model as .npz arrays + JSON metadata, atomically, without pickle."""
+        save_model(self, path)
+
+    def to_device(self):
+        """Parameters as JAX arrays (for use inside jitted code)."""
+        return jax.tree_util.tree_map(jnp.asarray, self.params)

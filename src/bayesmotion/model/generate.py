@@ -1,0 +1,431 @@
+"""Generation with predictive uncertainty (Taubert et al. eq. 13-16, plus sampling).
+
+The dynamics layer is rolled out under ``lax.scan`` from a start state: by mean prediction, or,
+for ``n_samples > 0``, by drawing every step from the GP predictive ``N(mean, var + 1/alpha_noise)``
+(``vmap`` over samples). Each step is drawn given the previous *values* only, not the GP's
+function values at earlier inputs (the usual sequential approximation, as in the enhanced-GPDM
+of Ko & Fox). Every latent trajectory is then mapped top-down by mean prediction through the
+interaction and bottom layers (batched over frames) and to joint positions by forward
+kinematics.
+
+Reported along the rollout:
+
+* ``*_var``: the one-step predictive variance of each layer along the mean rollout (latent I,
+  latent X, pose Y), carried to joint angles (times the codec scale squared) and joint positions
+  (first-order propagation through forward kinematics);
+* ``samples`` and ``sample_var``: the sampled rollouts and their spread in the same spaces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bayesmotion.data.bvh import write_bvh
+from bayesmotion.data.fk import forward_kinematics, forward_kinematics_with_variance
+from bayesmotion.data.motion import Motion
+from bayesmotion.errors import BayesmotionError
+from bayesmotion.model.predict import (
+    Predictor,
+    dynamics_mean_stepper,
+    noise_variances,
+    predict_bottom,
+    predict_bottom_mean,
+    predict_dynamics,
+    predict_interaction,
+    predict_interaction_mean,
+    restrict_to_styles,
+    style_vectors,
+)
+
+
+class Transition(NamedTuple):
+    """A style that changes from ``source`` to ``target``: the target's weight rises from 0 at
+    frame ``start`` to 1 at frame ``start + length`` along a smoothstep, as in the emotion
+    transitions of Bhattacharya et al. (2021); ``length = 0`` switches at frame ``start``.
+
+    ``source`` / ``target`` are level names or coordinate vectors.
+    """
+
+    source: object
+    target: object
+    start: int
+    length: int
+
+
+def style_coords(model, factor, value) -> np.ndarray:
+    K = len(model.levels[factor])
+    if isinstance(value, str):
+        return np.eye(K)[model.level_index(factor, value)]
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != (K,):
+        raise BayesmotionError(f"{factor} coordinates must have {K} entries "
+                               f"({', '.join(model.levels[factor])}), got shape {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise BayesmotionError(f"{factor} coordinates must be finite")
+    return v
+
+
+def resolve_style(model, factor: str, value, n_frames: int) -> np.ndarray:
+    """A style value -> (T, K) per-frame coordinates (label, vector, (T, K) array, Transition)."""
+    if factor not in model.levels:
+        raise BayesmotionError(f"model has no style factor {factor!r}")
+    K = len(model.levels[factor])
+    if isinstance(value, Transition):
+        a, b = style_coords(model, factor, value.source), style_coords(model, factor, value.target)
+        if value.length < 0:
+            raise BayesmotionError(f"a Transition's length must be >= 0, got {value.length}")
+        f = np.arange(n_frames) - value.start
+        t = (np.clip(f / value.length, 0.0, 1.0) if value.length > 0
+             else (f >= 0).astype(np.float64))
+        w = t * t * (3 - 2 * t)
+        return (1 - w)[:, None] * a + w[:, None] * b
+    arr = np.asarray(value) if not isinstance(value, str) else None
+    if arr is not None and arr.ndim == 2:
+        if arr.shape != (n_frames, K):
+            raise BayesmotionError(f"time-varying {factor} must be ({n_frames}, {K}), "
+                                   f"got {arr.shape}")
+        return np.asarray(arr, dtype=np.float64)
+    return np.tile(style_coords(model, factor, value), (n_frames, 1))
+
+
+def is_extrapolated(coords: np.ndarray) -> bool:
+    """True when any frame's coordinates leave the simplex (negative or not summing to 1)."""
+    return bool(np.any(coords < -1e-9) or np.any(np.abs(coords.sum(-1) - 1) > 1e-6))
+
+
+@dataclass(frozen=True, eq=False)
+class Rollout:
+    """Generated motion with its predictive uncertainty. Shapes: T frames, A actors, S samples.
+
+    Attributes:
+        fps: frame rate. styles: factor -> (T, K) coordinates used. extrapolated: any style
+        outside the simplex. start: description of the start state. n_observed: leading frames
+        copied from data (zero variance).
+        I, I_var: (T, Q_I) mean latent and its one-step predictive variance (incl. noise;
+            the same for every dimension of one GP layer).
+        variance_parts: posterior-predictive rollouts only: space -> {"within", "between"}
+            (GP variance given a draw, and variance of the mean across draws).
+        draws: posterior-predictive rollouts only: indices of the draws used.
+        X, X_var: (A, T, Q_X). Y, Y_var: (A, T, D).
+        angles, angles_var: (A, T, C) channel values (BVH order) and their variance.
+        positions, positions_var: (A, T, J, 3) joint positions and their variance.
+        samples: dict with I (S, T, Q_I), X, Y, angles (S, A, T, C), positions (S, A, T, J, 3),
+            or None. sample_var: the samples' spread in the same spaces.
+        skeletons: per actor, the skeleton used for decoding.
+    """
+
+    fps: float
+    styles: dict
+    extrapolated: bool
+    start: str
+    n_observed: int
+    I: np.ndarray
+    I_var: np.ndarray
+    X: np.ndarray
+    X_var: np.ndarray
+    Y: np.ndarray
+    Y_var: np.ndarray
+    angles: np.ndarray
+    angles_var: np.ndarray
+    positions: np.ndarray
+    positions_var: np.ndarray
+    skeletons: tuple
+    samples: dict | None = None
+    sample_var: dict | None = field(default=None)
+    variance_parts: dict | None = None
+    draws: np.ndarray | None = None
+
+    @property
+    def n_frames(self) -> int:
+        return self.I.shape[0]
+
+    def to_motion(self, sample: int | None = None) -> tuple[Motion, ...]:
+        """Per-actor Motions of the mean rollout (``sample=None``) or of sample ``sample``."""
+        if sample is None:
+            ang = self.angles
+        else:
+            if self.samples is None or not 0 <= sample < self.samples["angles"].shape[0]:
+                raise BayesmotionError(f"rollout has no sample {sample}")
+            ang = self.samples["angles"][sample]
+        return tuple(Motion(sk, ang[a], self.fps, f"actor{a}")
+                     for a, sk in enumerate(self.skeletons))
+
+    def interval(self, q: float = 0.9, space: str = "positions"):
+        """Central ``q`` Gaussian interval (lower, upper) of the mean rollout in a space."""
+        from scipy.stats import norm
+
+        mean, var = getattr(self, space), getattr(self, f"{space}_var")
+        z = norm.ppf(0.5 + q / 2)
+        sd = np.sqrt(var)
+        return mean - z * sd, mean + z * sd
+
+    def write_bvh(self, folder, prefix: str = "rollout", sample: int | None = None) -> list:
+        """One BVH file per actor; returns the paths."""
+        from pathlib import Path
+
+
+        tag = "mean" if sample is None else f"sample{sample}"
+        return [write_bvh(m, Path(folder) / f"{prefix}_{tag}_actor{a}.bvh")
+                for a, m in enumerate(self.to_motion(sample))]
+
+
+# --------------------------------------------------------------------------- the jitted core
+@partial(jax.jit, static_argnames=("n_steps", "sample", "with_var"))
+def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
+                     with_var: bool = True):
+    """Roll the dynamics forward n_steps from I0 (o, Q) with per-step styles (n_steps, K_f).
+
+    Returns (I (n_steps, Q), one-step variance (n_steps,) including the dynamics noise; None
+    for a mean rollout with ``with_var=False``).
+
+    The mean rollout needs only the predictive means, O(M Q) per step inside ``lax.scan``;
+    its one-step variances are computed afterwards for all steps at once (one product of L^-1
+    with the n_steps cross-covariance columns). A sampled rollout needs each step's variance to
+    draw it, so it computes it inside the scan.
+    """
+    noise = noise_variances(P)["I"]
+    o = I0.shape[0]
+
+    predict_mean, style_rows = dynamics_mean_stepper(P, styles)
+
+    def mean_step(lags, style_row):
+        new = predict_mean(lags, style_row)
+        return jnp.concatenate([new[None], lags[:-1]], axis=0), new
+
+    def sample_step(lags, inp):
+        s, k = inp
+        mean, var = predict_dynamics(P, lags[:, None, :], [x[None] for x in s])
+        v = var[0] + noise
+        new = mean[0] + jnp.sqrt(v) * jax.random.normal(k, mean[0].shape)
+        return jnp.concatenate([new[None], lags[:-1]], axis=0), (new, v)
+
+    if sample:
+        keys = jax.random.split(key, n_steps)
+        _, (I, v) = jax.lax.scan(sample_step, I0[::-1], (tuple(styles), keys))
+        return I, v
+    _, I = jax.lax.scan(mean_step, I0[::-1], style_rows)
+    if not with_var:
+        return I, None
+    full = jnp.concatenate([I0, I])
+    lags = jnp.stack([full[o - 1 - k:o - 1 - k + n_steps] for k in range(o)])
+    _, var = predict_dynamics(P, lags, list(styles))
+    return I, var + noise
+
+
+@partial(jax.jit, static_argnames=("n_actors",))
+def map_down(P: Predictor, I, int_styles, n_actors: int):
+    """Mean prediction top-down for a whole latent trajectory I (T, Q_I)."""
+    noise = noise_variances(P)
+    Xm, Xv = predict_interaction(P, I, list(int_styles))
+    q = Xm.shape[1] // n_actors
+    out = []
+    for a in range(n_actors):
+        Xa = Xm[:, a * q:(a + 1) * q]
+        Ym, Yv = predict_bottom(P, a, Xa)
+        out.append((Xa, Ym, Yv + noise["Y"]))
+    return out, Xv + noise["X"]
+
+
+@partial(jax.jit, static_argnames=("n_actors",))
+def map_down_mean(P: Predictor, I, int_styles, n_actors: int):
+    """:func:`map_down`'s means alone, [(X_a, Y_a)] per actor: what sampled rollouts need (their
+    spread is measured across samples), without the O(N^2) per-frame variances."""
+    Xm = predict_interaction_mean(P, I, list(int_styles))
+    q = Xm.shape[1] // n_actors
+    actors = [Xm[:, a * q:(a + 1) * q] for a in range(n_actors)]
+    return [(Xa, predict_bottom_mean(P, a, Xa)) for a, Xa in enumerate(actors)]
+
+
+# --------------------------------------------------------------------------- decoding to motion
+def _anchor(model, codec, trial: int, actor: int, n_frames: int):
+    anchor = np.asarray(model.trials[trial].anchors[actor])
+    if codec.root_mode == "partner":
+        return np.broadcast_to(anchor.mean(0), (n_frames, anchor.shape[1]))
+    return anchor
+
+
+def decode_actor(model, actor: int, Y, Y_var, trial: int):
+    """Y (T, D) and isotropic variance (T,) -> channels (T, C), variance (T, C), skeleton, and
+    the same three in the codec's rig (rest frames), where the pose variance is isotropic (the
+    positions' variance is computed there: the joint positions are the same on both rigs)."""
+    codec = model.codecs[actor]
+    sk = model.skeleton(actor, trial)
+    T = Y.shape[0]
+    motion = codec.decode_rig(np.asarray(Y), _anchor(model, codec, trial, actor, T), sk,
+                              model.fps)
+    # model-space columns ("heading" appends a heading-rate column after the C channels)
+    full = np.zeros((T, codec.constant.size))
+    full[:, codec.keep] = np.asarray(Y_var)[:, None] * codec.scale**2
+    var = full[:, :motion.values.shape[1]]
+    if codec.root_mode in ("velocity", "heading"):
+        # positions integrate velocities: variances add up. Approximations: the two velocity
+        # columns share one variance (exact with scaling="type", where they share one scale, so
+        # rotating body-frame velocity to the world leaves it unchanged); in "heading" mode the
+        # heading's own uncertainty (integrated turn-rate variance) is not propagated into the
+        # path or the mover's rotation, whose variance is that of its heading-free angles
+        h = codec.horizontal_columns(sk)
+        var[:, h] = np.concatenate([np.zeros((1, h.size)),
+                                    np.cumsum(var[1:, h], 0) / model.fps**2])
+    rig = (motion.values, var, motion.skeleton)
+    if codec.frames is None:
+        return motion.values, var, sk, rig
+    return codec.from_rig(motion, sk).values, codec.channel_variance(motion, var), sk, rig
+
+
+def _positions(sk, values) -> np.ndarray:
+    """Joint positions (..., T, J, 3) of channel values (..., T, C)."""
+    return np.asarray(forward_kinematics(sk, values))
+
+
+def _positions_with_var(sk, values, var):
+    """Joint positions and their first-order variance (analytic FK Jacobian, see
+    :func:`bayesmotion.data.fk.forward_kinematics_with_variance`)."""
+    p, v = forward_kinematics_with_variance(sk, values, var)
+    return np.asarray(p), np.asarray(v)
+
+
+# --------------------------------------------------------------------------- the public driver
+def _start_trial(model, styles, start) -> int:
+    if isinstance(start, int | np.integer):
+        if not 0 <= start < len(model.trials):
+            raise BayesmotionError(f"start trial {start} out of range (0-{len(model.trials) - 1})")
+        return int(start)
+    target = {f: np.argmax(c[0]) for f, c in styles.items()}
+    for r, rec in enumerate(model.trials):
+        if all(model.levels[f].index(rec.labels[f]) == k for f, k in target.items()):
+            return r
+    return 0
+
+
+def check_decodes(model) -> None:
+    """Raise BayesmotionError, naming why, when the model's pose space cannot be decoded to
+    motion (``HGPDM(pose_space="affective")``)."""
+    for codec in model.codecs:
+        if not codec.decodes:
+            codec.decode()  # raises with the reason
+
+
+def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,
+             start=None, seed: int = 0, predictor: Predictor | None = None,
+             **styles) -> Rollout:
+    """Generate a rollout; see :meth:`FittedHGPDM.generate`."""
+    check_decodes(model)
+    if n_frames <= model.spec.order:
+        raise BayesmotionError(f"n_frames must exceed the dynamics order ({model.spec.order})")
+    if n_samples < 0:
+        raise BayesmotionError("n_samples must be >= 0")
+    unknown = sorted(set(styles) - set(model.spec.factors))
+    if unknown:
+        raise BayesmotionError(f"the model has no style factor {unknown}; its factors are "
+                               f"{list(model.spec.factors)}")
+    values = dict(styles)
+    if "emotion" in model.levels:
+        values["emotion"] = emotion
+    if "couple" in model.levels:
+        values["couple"] = couple if couple is not None else model.levels["couple"][0]
+    coords = {f: resolve_style(model, f, values.get(f, model.levels[f][0]), n_frames)
+              for f in model.spec.factors}
+    _check_trained_levels(model, coords)
+    P = model.predictor() if predictor is None else predictor
+    o = model.spec.order
+    if isinstance(start, str) and start == "prior":
+        r, desc = _start_trial(model, coords, None), "prior mean"
+        I0 = np.zeros((o, model.spec.interaction_dim))
+    elif start is None or isinstance(start, int | np.integer):
+        r = _start_trial(model, coords, start)
+        I0 = model.latents(r)["I"][:o]
+        desc = f"first {o} frames of training trial {r} ({model.trials[r].name})"
+    else:
+        I0 = np.asarray(start, dtype=np.float64)
+        if I0.shape != (o, model.spec.interaction_dim):
+            raise BayesmotionError(f"start must be a trial index, 'prior' or an array of shape "
+                                   f"{(o, model.spec.interaction_dim)}, got {I0.shape}")
+        r, desc = _start_trial(model, coords, None), "given latent state"
+    dyn_f, int_f = model.spec.dynamics_factors, model.spec.interaction_factors
+    dyn_s = tuple(style_vectors(P, dyn_f, [coords[f][o:] for f in dyn_f]))
+    int_s = tuple(style_vectors(P, int_f, [coords[f] for f in int_f]))
+    P = restrict_to_styles(P, dyn_s, int_s)  # exact: drops the style cells no frame sees
+    key = jax.random.PRNGKey(seed)
+    I_gen, I_var = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n_frames - o, False)
+    I = np.concatenate([I0, np.asarray(I_gen)])
+    I_var = np.concatenate([np.zeros(o), np.asarray(I_var)])[:, None] * np.ones_like(I)
+    mean = _map_and_decode(model, P, jnp.asarray(I), int_s, r)
+    samples = sample_var = None
+    if n_samples:
+        keys = jax.random.split(key, n_samples + 1)[1:]
+        roll = jax.vmap(lambda k: dynamics_rollout(P, jnp.asarray(I0), dyn_s, k, n_frames - o,
+                                                   True)[0])
+        I_s = np.concatenate([np.broadcast_to(I0, (n_samples, o, I0.shape[1])),
+                              np.asarray(roll(keys))], axis=1)
+        samples = {"I": I_s, **_map_and_decode_samples(model, P, jnp.asarray(I_s), int_s, r)}
+        sample_var = {k: v.var(0) for k, v in samples.items()}
+    return Rollout(fps=model.fps, styles=coords,
+                   extrapolated=any(is_extrapolated(c) for c in coords.values()), start=desc,
+                   n_observed=o, I=I, I_var=I_var, skeletons=mean.pop("skeletons"),
+                   samples=samples, sample_var=sample_var, **mean)
+
+
+def _check_trained_levels(model, coords: dict) -> None:
+    """Refuse weight on a level no training trial has: its (one-hot) style vector is orthogonal
+    to every training trial's, so the kernels see no data and the rollout collapses to the
+    prior mean (zero) after the start frames."""
+    for f, c in coords.items():
+        seen = np.asarray(model.data.onehot[f]).sum(0) > 0
+        used = np.any(np.abs(np.asarray(c)) > 1e-12, axis=0)
+        empty = [model.levels[f][k] for k in np.flatnonzero(used & ~seen)]
+        if empty:
+            trained = [model.levels[f][k] for k in np.flatnonzero(seen)]
+            raise BayesmotionError(f"{f} level(s) {empty} have no training trials in this model "
+                                   f"(trained: {trained}); the model cannot generate them")
+
+
+def _map_and_decode_samples(model, P, I_s, int_s, trial):
+    """Samples (S, T, Q_I) -> X, Y, angles, positions, each with a leading sample axis."""
+    A = model.n_actors
+    outs = jax.vmap(lambda I: map_down_mean(P, I, int_s, A))(I_s)
+    X = np.stack([np.asarray(o[0]) for o in outs], axis=1)  # (S, A, T, Q)
+    Y = np.stack([np.asarray(o[1]) for o in outs], axis=1)
+    angles, positions = [], []
+    for a in range(A):
+        codec, sk = model.codecs[a], model.skeleton(a, trial)
+        anchor = _anchor(model, codec, trial, a, Y.shape[2])
+        v = np.stack([codec.decode(y, anchor, sk, model.fps).values for y in Y[:, a]])
+        angles.append(v)
+        positions.append(_positions(sk, v))
+    return {"X": X, "Y": Y, "angles": np.stack(angles, 1), "positions": np.stack(positions, 1)}
+
+
+def _map_and_decode(model, P, I, int_s, trial, with_var=True):
+    A = model.n_actors
+    if not with_var:  # means alone (no O(N^2) per-frame variances): one "sample", the mean
+        return {k: v[0] for k, v in _map_and_decode_samples(model, P, I[None], int_s,
+                                                             trial).items()}
+    layers_out, X_var = map_down(P, I, int_s, A)
+    X = np.stack([np.asarray(l[0]) for l in layers_out])
+    Y = np.stack([np.asarray(l[1]) for l in layers_out])
+    Y_var = np.stack([np.asarray(l[2]) for l in layers_out])
+    ang, ang_var, pos, pos_var, sks = [], [], [], [], []
+    for a in range(A):
+        v, var, sk, rig = decode_actor(model, a, Y[a], Y_var[a], trial)
+        rig_values, rig_var, rig_skeleton = rig
+        p, pv = _positions_with_var(rig_skeleton, rig_values, rig_var)
+        ang.append(v), ang_var.append(var), pos.append(p), pos_var.append(pv), sks.append(sk)
+    # the first o frames are observed: no predictive variance there
+    o = model.spec.order
+    Xv = np.broadcast_to(np.asarray(X_var), (A, X.shape[1])).copy()
+    for arr in (Xv, Y_var):
+        arr[:, :o] = 0.0
+    ang_var = np.stack(ang_var)
+    ang_var[:, :o] = 0.0
+    pos_var = np.stack(pos_var)
+    pos_var[:, :o] = 0.0
+    return {"X": X, "X_var": Xv[..., None] * np.ones_like(X), "Y": Y,
+            "Y_var": Y_var[..., None] * np.ones_like(Y), "angles": np.stack(ang),
+            "angles_var": ang_var, "positions": np.stack(pos), "positions_var": pos_var,
+            "skeletons": tuple(sks)}

@@ -1,0 +1,98 @@
+"""The H-GPDM's layers as log-likelihoods: the interaction GP-LVM with the multifactor style
+kernel and the GPDM of order 1 or 2 over many trials (eq. 9, 11), dense and block-diagonal.
+
+The Gaussian log-densities they call, and their numerics, are in :mod:`bayesmotion.gp.densities`.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from bayesmotion.gp import kernels
+from bayesmotion.gp.densities import LOG_2PI, Blocks, blocked_gaussian_loglik, gaussian_loglik
+
+
+def restart_log_prior(first, init_var):
+    """sum of log N(i | 0, init_var I) over the first o frames of every trial (eq. 9): the
+    dynamics chain restarts at each trial from this isotropic prior."""
+    return -0.5 * jnp.sum(first**2) / init_var - 0.5 * first.size * (LOG_2PI + jnp.log(init_var))
+
+
+def style_gplvm_loglik(I, Z, S, beta, jitter=0.0):
+    """Interaction layer: log p(Z | I, beta, S) with the multifactor kernel.
+
+    K_X = (c c'^T)(e e'^T) o beta1 exp(-beta2/2 |i-i'|^2) + beta3^-1 I.
+    I: (N, Q_I), Z: (N, D_Z) stacked actor latents [X1, X2], S: per-factor (N, K_f).
+    """
+    K = kernels.interaction_kernel(I, I, S, S, beta) + jnp.eye(I.shape[0]) / beta[2]
+    return gaussian_loglik(K, Z, jitter)
+
+
+def dynamics_io(I: jnp.ndarray, index: DynamicsIndex):
+    """Inputs (o lags) and outputs of the dynamics GP, gathered by precomputed indices."""
+    lags = [I[index.lag[l]] for l in range(index.order)]
+    return lags, I[index.out]
+
+
+class DynamicsIndex:
+    """Frame indices of a multi-trial GPDM of order o; static (NumPy) bookkeeping.
+
+    For every trial with frames [s, e), the outputs are frames s+o .. e-1 and lag l (1..o) of
+    output t is frame t-l: the Markov chain restarts at each trial, whose first o frames get the
+    isotropic Gaussian prior instead (eq. 9 / 11).
+    """
+
+    def __init__(self, lengths, order: int):
+        if order not in (1, 2):
+            raise ValueError(f"dynamics order must be 1 or 2, got {order}")
+        lengths = [int(n) for n in lengths]
+        if min(lengths) <= order:
+            raise ValueError(f"every trial needs more than {order} frames; got {min(lengths)}")
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        self.order = order
+        self.lengths = np.asarray(lengths)
+        self.starts = starts
+        self.out = np.concatenate([np.arange(s + order, s + n)
+                                   for s, n in zip(starts, lengths, strict=True)])
+        self.lag = [self.out - l for l in range(1, order + 1)]
+        self.first = np.concatenate([np.arange(s, s + order) for s in starts])
+        self.trial_of_frame = np.repeat(np.arange(len(lengths)), lengths)
+
+
+def gpdm_loglik(I, S, alpha, index: DynamicsIndex, jitter=0.0, prior_var=1.0):
+    """Dynamics layer: log p(I | alpha, S) for a GPDM of order 1 or 2 over many trials.
+
+    log p = log N(I_out | 0, K_I) (columns independent, eq. 11)
+            + sum over each trial's first o frames of log N(i | 0, prior_var * I).
+
+    I: (N, Q) latents of all trials stacked; S: per-factor (N, K_f) per-frame style.
+    """
+    lags, out = dynamics_io(I, index)
+    S_out = [s[index.out] for s in S]
+    o = index.order
+    K = kernels.dynamics_kernel(lags, lags, S_out, S_out, alpha)
+    K = K + jnp.eye(out.shape[0]) / alpha[1 + 2 * o]
+    ll = gaussian_loglik(K, out, jitter)
+    return ll + restart_log_prior(I[index.first], prior_var)
+
+
+def blocked_style_gplvm_loglik(I, Z, beta, blocks: Blocks, jitter=0.0):
+    """Interaction layer for one-hot styles: within a cell the style factor is exactly 1."""
+    return blocked_gaussian_loglik(lambda ix: kernels.rbf(I[ix], I[ix], beta[0], beta[1]),
+                                   Z, 1.0 / beta[2], blocks, jitter)
+
+
+def blocked_gpdm_loglik(I, alpha, index: DynamicsIndex, blocks: Blocks, jitter=0.0,
+                        prior_var=1.0):
+    """Dynamics layer for one-hot styles (blocks group the *output* rows by style cell)."""
+    lags, out = dynamics_io(I, index)
+    o = index.order
+    ones = jnp.ones((out.shape[0], 1))
+
+    def K_rows(ix):
+        la = [l[ix] for l in lags]
+        return kernels.dynamics_kernel(la, la, [ones[ix]], [ones[ix]], alpha)
+
+    ll = blocked_gaussian_loglik(K_rows, out, 1.0 / alpha[1 + 2 * o], blocks, jitter)
+    return ll + restart_log_prior(I[index.first], prior_var)

@@ -1,0 +1,114 @@
+"""HGPDM: the specification of a hierarchical GPDM, and the estimator whose ``fit`` returns a
+:class:`~bayesmotion.model.fitted.FittedHGPDM` (MAP, :mod:`bayesmotion.model.fit`).
+
+The model itself (layers, log-posterior of eq. 12) is in :mod:`bayesmotion.model.logpost`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from bayesmotion.codecs.affective import check_pose_space
+from bayesmotion.data.motion import MotionDataset
+from bayesmotion.errors import BayesmotionError
+from bayesmotion.model.fit import fit_hgpdm
+from bayesmotion.model.fitted import FittedHGPDM
+from bayesmotion.model.params import Priors
+
+DEFAULT_FACTORS = ("couple", "emotion")
+
+
+@dataclass(frozen=True)
+class HGPDM:
+    """Specification of a hierarchical GPDM (immutable; ``fit`` returns a FittedHGPDM).
+
+    Attributes:
+        latent_dim: Q_X, dimension of each actor's latent X (paper: 6).
+        interaction_dim: Q_I, dimension of the joint latent I (paper: 6).
+        order: dynamics order, 1 or 2 (paper: 2).
+        interaction_factors: style factors entering the interaction kernel (default: those of
+            ("couple", "emotion") present in the data).
+        dynamics_factors: style factors entering the dynamics kernel (same default).
+        root_mode: root translation representation ("partner" for two actors, "heading" for
+            one, by default); see bayesmotion.codecs.pose.
+        scaling: per-channel scaling of Y ("type" or "channel").
+        rest_frames: turn each joint's frame to its mean rotation over the training motions
+            before encoding (see bayesmotion.codecs.pose; for rigs near gimbal lock,
+            such as Bandai's spine). Stored with the model, so new clips get the same frames.
+        canonical_side: mirror every one-actor motion that moves to the actor's right before
+            encoding, training clips and new clips alike (label-free;
+            bayesmotion.data.mirror.canonical_side); generated motion is on the left side.
+        pose_space: what the bottom layer models: "angles" (joint angles and the root's
+            motion, :class:`~bayesmotion.codecs.pose`; the model generates
+            motion) or "affective" (the 18 affective pose features of every frame,
+            :mod:`bayesmotion.codecs.affective`; invariant to the body's position, heading
+            and size, for inferring emotion across actions; such a model cannot generate
+            motion; ``rest_frames`` and a ``scaling`` other than the default are refused:
+            the features are standardised one by one).
+        priors: prior settings.
+    """
+
+    latent_dim: int = 6
+    interaction_dim: int = 6
+    order: int = 2
+    interaction_factors: tuple[str, ...] | None = None
+    dynamics_factors: tuple[str, ...] | None = None
+    root_mode: str | None = None
+    scaling: str = "type"
+    rest_frames: bool = False
+    canonical_side: bool = False
+    pose_space: str = "angles"
+    priors: Priors = field(default_factory=Priors)
+
+    def __post_init__(self):
+        check_pose_space(self.pose_space, self.rest_frames, self.scaling)
+        if self.order not in (1, 2):
+            raise BayesmotionError(f"order must be 1 or 2, got {self.order}")
+        if self.latent_dim < 1 or self.interaction_dim < 1:
+            raise BayesmotionError("latent dimensions must be positive")
+
+    def resolved(self, dataset: MotionDataset) -> HGPDM:
+        """Fill defaults that depend on the data (factors, root mode)."""
+        present = tuple(f for f in DEFAULT_FACTORS if f in dataset.levels)
+        spec = self
+        for name in ("interaction_factors", "dynamics_factors"):
+            val = getattr(spec, name)
+            val = present if val is None else tuple(val)
+            missing = [f for f in val if f not in dataset.levels]
+            if missing:
+                raise BayesmotionError(f"{name}: dataset has no labels for {missing}; "
+                                       f"it has {list(dataset.levels)}")
+            spec = replace(spec, **{name: val})
+        if spec.root_mode is None:
+            spec = replace(spec, root_mode="partner" if dataset.n_actors == 2 else "heading")
+        return spec
+
+    @property
+    def factors(self) -> tuple[str, ...]:
+        """All style factors used anywhere, in a fixed order."""
+        out = []
+        for f in (*self.interaction_factors, *self.dynamics_factors):
+            if f not in out:
+                out.append(f)
+        return tuple(out)
+
+    def to_dict(self) -> dict:
+        d = {k: getattr(self, k) for k in ("latent_dim", "interaction_dim", "order",
+                                             "root_mode", "scaling", "rest_frames",
+                                             "canonical_side", "pose_space")}
+        d["interaction_factors"] = list(self.interaction_factors or ())
+        d["dynamics_factors"] = list(self.dynamics_factors or ())
+        d["priors"] = self.priors.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> HGPDM:
+        d = dict(d)
+        d["priors"] = Priors.from_dict(d["priors"])
+        d["interaction_factors"] = tuple(d["interaction_factors"])
+        d["dynamics_factors"] = tuple(d["dynamics_factors"])
+        return cls(**d)
+
+    def fit(self, dataset: MotionDataset, **kwargs) -> FittedHGPDM:
+        """MAP fit; see :func:`bayesmotion.model.fit.fit_hgpdm` for the options."""
+        return fit_hgpdm(self, dataset, **kwargs)

@@ -1,0 +1,1 @@
+"""Figures and animations of motion, rollouts and posteriors (matplotlib)."""
