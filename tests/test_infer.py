@@ -201,7 +201,7 @@ def _check_expansion(m, trial, given, seed=3):
                         **args)
     conc_j = {k: jnp.asarray(v) for k, v in conc.items()}
     for _ in range(3):
-        u = {"u:" + f: jnp.asarray(rng.normal(0, 1.5, K - 1)) for f, K in free.items()}
+        u = {"style:" + f: jnp.asarray(rng.normal(0, 1.5, K - 1)) for f, K in free.items()}
         direct = clip_log_density(P, {**lat, **u}, Yp, mask, fixed, conc_j,
                                   init_var=float(spec.priors.init_var), **args)
         fast = expanded_log_density(E, u, conc_j, free, **args)
@@ -212,7 +212,7 @@ def _check_expansion(m, trial, given, seed=3):
         np.testing.assert_allclose(float(tempered), 0.3 * (float(direct) - prior) + prior,
                                    rtol=1e-9)
         coords = {f: style_to_simplex(v[None])[0] for f, v in
-                  ((k[2:], u[k]) for k in u)}
+                  ((k[len("style:"):], u[k]) for k in u)}
         np.testing.assert_allclose(float(expanded_log_likelihood(E, coords, free, **args)),
                                    float(direct) - prior, rtol=1e-9)
     return free
@@ -333,7 +333,7 @@ def test_emotion_starts_levels_explains_the_clip_as_each_emotion(tiny_model, tin
         # every start latent is a training latent of level k
         d = np.abs(np.asarray(p["I"])[:, None] - I_train[None]).sum(-1)
         assert np.all(level[np.argmin(d, 1)] == k)
-        assert np.argmax(style_to_simplex(jnp.asarray(p["u:emotion"])[None])[0]) == k
+        assert np.argmax(style_to_simplex(jnp.asarray(p["style:emotion"])[None])[0]) == k
     with pytest.raises(bm.BayesmotionError, match="emotion_starts"):
         bm.infer_emotion(tiny_model, trial, emotion_starts="all")
 

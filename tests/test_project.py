@@ -45,7 +45,7 @@ def _setup(model, trial, T, B):
     assert inferred == ["emotion"]
     X0, I0, _ = init_latents(model, Ys, B)
     params = {"X": jnp.asarray(X0), "I": jnp.asarray(I0),
-              "u:emotion": jnp.asarray([0.3, -0.2][:len(conc["emotion"]) - 1])}
+              "style:emotion": jnp.asarray([0.3, -0.2][:len(conc["emotion"]) - 1])}
     mask = jnp.asarray(np.arange(B) < T)
     Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
     P = model.predictor()

@@ -190,7 +190,8 @@ def fit_verb(motions: Sequence[Motion], points, n_samples: int | None = None, ke
         n_samples: normalised-time samples (default: the longest example's frame count).
         keytimes: (N, K) increasing frame indices of matching keyframes, first 0 and last
             T_i - 1; None for a linear time warp.
-        kernel, epsilon: see :func:`fit_rbf`.
+        kernel: see :func:`fit_rbf`.
+        epsilon: see :func:`fit_rbf`.
     """
     if len({(m.skeleton.names, m.skeleton.channels) for m in motions}) > 1:
         raise SkeletonMismatchError("verb examples must share one skeleton layout")

@@ -19,10 +19,11 @@ import itertools
 from typing import NamedTuple
 
 import jax.numpy as jnp
-import numpy as np
 
 from bayesmotion.gp import kernels
-from bayesmotion.model.params import style_log_jacobian, style_to_simplex
+from bayesmotion.gp.densities import LOG_2PI
+from bayesmotion.model.layers import restart_log_prior
+from bayesmotion.model.params import STYLE_PREFIX, style_log_prior, style_to_simplex
 from bayesmotion.model.predict import (
     LayerFit,
     Predictor,
@@ -33,8 +34,6 @@ from bayesmotion.model.predict import (
     whiten,
 )
 
-LOG_2PI = float(np.log(2 * np.pi))
-
 
 def _normal(x, mean, var):
     """Sum over the last axis of log N(x | mean, var) with var broadcast per row. -> (B,)"""
@@ -43,9 +42,9 @@ def _normal(x, mean, var):
 
 
 def styles_from(params: dict, fixed: dict, factors, vectors: dict) -> list[jnp.ndarray]:
-    """Per factor (K_f,) style vector: a free one's coordinates ``params["u:<f>"]`` (on the
+    """Per factor (K_f,) style vector: a free one's coordinates ``params["style:<f>"]`` (on the
     simplex) times its level vectors, else the fixed vector."""
-    return [style_to_simplex(params["u:" + f][None])[0] @ vectors[f] if ("u:" + f) in params
+    return [style_to_simplex(params[STYLE_PREFIX + f][None])[0] @ vectors[f] if (STYLE_PREFIX + f) in params
             else jnp.asarray(fixed[f]) for f in factors]
 
 
@@ -56,12 +55,6 @@ def _bottom_term(P: Predictor, X, Ys, m):
         mu, var = predict_bottom(P, a, X[a])
         bottom = bottom + jnp.sum(m * _normal(Y, mu, var + noise))
     return bottom
-
-
-def _start_prior(first, init_var: float):
-    """log N of the first ``order`` frames under the chain's restart prior N(0, v0 I)."""
-    return -0.5 * jnp.sum(first**2) / init_var - 0.5 * first.size * (
-        LOG_2PI + jnp.log(init_var))
 
 
 def clip_terms(P: Predictor, params: dict, Ys, mask, fixed: dict, int_factors, dyn_factors,
@@ -82,21 +75,8 @@ def clip_terms(P: Predictor, params: dict, Ys, mask, fixed: dict, int_factors, d
     s_dyn = [jnp.broadcast_to(s, (B - o, s.shape[0]))
              for s in styles_from(params, fixed, dyn_factors, P.level_vectors)]
     mu, var = predict_dynamics(P, lags, s_dyn)
-    dyn = jnp.sum(m[o:] * _normal(I[o:], mu, var + noise["I"])) + _start_prior(I[:o], init_var)
+    dyn = jnp.sum(m[o:] * _normal(I[o:], mu, var + noise["I"])) + restart_log_prior(I[:o], init_var)
     return bottom, inter, dyn
-
-
-def style_log_prior(params: dict, concentration: dict) -> jnp.ndarray:
-    """Dirichlet log-density of each free style plus the stick-breaking log-Jacobian."""
-    import numpyro.distributions as dist
-
-    lp = 0.0
-    for key, u in params.items():
-        if key.startswith("u:"):
-            s = jnp.clip(style_to_simplex(u[None])[0], 1e-300, 1.0)
-            lp = lp + dist.Dirichlet(jnp.asarray(concentration[key[2:]])).log_prob(s)
-            lp = lp + style_log_jacobian(u[None])
-    return lp
 
 
 def clip_log_density(P, params, Ys, mask, fixed, concentration, int_factors, dyn_factors,
@@ -179,7 +159,7 @@ def style_expansion(P: Predictor, params: dict, Ys, mask, fixed: dict, free: dic
                    P.dyn, dyn_factors, free, fixed, B - o, P.level_vectors)
     base = kernels.dynamics_diag(list(lags), unit(dyn_factors, B - o), P.alpha)
     dyn = _Expanded(I[o:], G, H, base, noise["I"], m[o:])
-    return StyleExpansion(_bottom_term(P, X, Ys, m) + _start_prior(I[:o], init_var), inter, dyn,
+    return StyleExpansion(_bottom_term(P, X, Ys, m) + restart_log_prior(I[:o], init_var), inter, dyn,
                           {f: P.level_vectors[f] for f in free})
 
 
@@ -209,11 +189,11 @@ def expanded_log_likelihood(E: StyleExpansion, coords: dict, free: dict, int_fac
 
 def expanded_log_density(E: StyleExpansion, params: dict, concentration: dict, free: dict,
                          int_factors, dyn_factors, likelihood_power=1.0):
-    """:func:`clip_log_density` at the free styles ``params["u:<f>"]`` from an expansion.
+    """:func:`clip_log_density` at the free styles ``params["style:<f>"]`` from an expansion.
 
     ``likelihood_power`` eta multiplies the clip's log-likelihood, not the styles' prior: the
     tempered (generalised-Bayes) posterior p(s) p(clip | s)^eta; 1 is the plain posterior."""
-    coords = {f: style_to_simplex(params["u:" + f][None])[0] for f in free}
+    coords = {f: style_to_simplex(params[STYLE_PREFIX + f][None])[0] for f in free}
     loglik = expanded_log_likelihood(E, coords, free, int_factors, dyn_factors)
     total = likelihood_power * loglik + style_log_prior(params, concentration)
     return jnp.where(jnp.isnan(total), -jnp.inf, total)

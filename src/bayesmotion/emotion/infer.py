@@ -54,7 +54,7 @@ from bayesmotion.errors import BayesmotionError
 from bayesmotion.inference.posterior import Posterior
 from bayesmotion.inference.target import capped_covariance, draw_start, in_halves
 from bayesmotion.model.generate import style_coords
-from bayesmotion.model.params import simplex_to_style, style_to_simplex
+from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style, style_to_simplex
 from bayesmotion.model.predict import style_vectors
 from bayesmotion.shapes import padded_length
 
@@ -70,7 +70,7 @@ def _style_logp(x, E, conc, power, int_factors, dyn_factors, free):
     the style expansion (bayesmotion.emotion.density); the likelihood raised to ``power``."""
     params, start = {}, 0
     for f, K in free:
-        params["u:" + f] = x[start:start + K - 1]
+        params[STYLE_PREFIX + f] = x[start:start + K - 1]
         start += K - 1
     return expanded_log_density(E, params, conc, dict(free), int_factors, dyn_factors, power)
 
@@ -158,7 +158,8 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
         prior: Dirichlet concentrations over the emotion levels (default flat, all ones).
         method: "emcee" (the only sampler for now; NUTS is used for the model posterior).
         seed: seeds the walkers.
-        n_walkers, n_steps: emcee settings. With a Posterior as ``model`` the steps are shared
+        n_walkers: emcee walkers.
+        n_steps: emcee steps. With a Posterior as ``model`` the steps are shared
             out: each of the ``n_draws`` draws runs ``n_steps // n_draws + 50`` steps (the 50
             covering each chain's burn-in), and their samples are pooled.
         max_iter: L-BFGS iterations of the projection (per start). The default keeps a
@@ -277,7 +278,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
               for k in ("X", "I")}
     stage("latent_sd")
     free = tuple((f, len(model.levels[f])) for f in sorted(inferred))
-    keys = tuple(("u:" + f, K - 1) for f, K in free)
+    keys = tuple((STYLE_PREFIX + f, K - 1) for f, K in free)
     E = _expansion(latents, *args, **statics, free=free)
     x0 = np.concatenate([np.asarray(params[k]) for k, _ in keys])
     ndim = x0.size
@@ -313,7 +314,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     for k, n in keys:
         u = chain[..., start:start + n]
         s = np.asarray(style_to_simplex(jnp.asarray(u.reshape(-1, n))))
-        styles[k[2:]] = np.swapaxes(s.reshape(*u.shape[:2], n + 1), 0, 1)
+        styles[k[len(STYLE_PREFIX):]] = np.swapaxes(s.reshape(*u.shape[:2], n + 1), 0, 1)
         start += n
     stage("sample")
     info = {"n_frames": T, "mirrored": mirrored,
@@ -350,7 +351,7 @@ def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc):
     K = log_ev.size
     v = np.full(K, 0.03 / max(K - 1, 1))
     v[k] = 0.97
-    params = {**out[k][0], "u:emotion": simplex_to_style(jnp.asarray(v)[None])[0]}
+    params = {**out[k][0], STYLE_PREFIX + "emotion": simplex_to_style(jnp.asarray(v)[None])[0]}
     info = {"level_log_evidence": log_ev.tolist(),
             "level_probabilities": (prob / prob.sum()).tolist(),
             "level_objectives": [float(o[1].fun) for o in out],

@@ -30,10 +30,10 @@ import scipy.optimize
 from jax.flatten_util import ravel_pytree
 
 from bayesmotion.emotion.density import clip_log_density
-from bayesmotion.model.params import simplex_to_style
+from bayesmotion.gp.densities import LOG_2PI
+from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style
 from bayesmotion.optim import lbfgs
 
-LOG_2PI = float(np.log(2 * np.pi))
 ROUND_ITER = 100  # L-BFGS iterations between re-estimates of the diagonal scaling
 HVP_CHUNK = 64  # Hessian-vector products per vmapped batch
 STATIC_ARGS = ("int_factors", "dyn_factors", "init_var")
@@ -102,7 +102,7 @@ def _start_params(model, Ys, B, rows, factors, conc) -> dict:
     for f in factors:
         start = (_style_start(model, f, conc[f], nearest) if f in model.data.onehot
                  else conc[f] / conc[f].sum())
-        params["u:" + f] = simplex_to_style(jnp.asarray(start)[None])[0]
+        params[STYLE_PREFIX + f] = simplex_to_style(jnp.asarray(start)[None])[0]
     return params
 
 
@@ -215,7 +215,7 @@ def project(params, args, statics, max_iter, inferred, conc):
     for k in range(K):
         v = np.full(K, 0.1 / max(K - 1, 1))
         v[k] = 0.9
-        start = {**params, "u:" + f: simplex_to_style(jnp.asarray(v)[None])[0]}
+        start = {**params, STYLE_PREFIX + f: simplex_to_style(jnp.asarray(v)[None])[0]}
         out = minimize_scaled(start, args, statics, max_iter)
         if best is None or out[1].fun < best[1].fun:
             best = out

@@ -26,7 +26,7 @@ from bayesmotion.baselines.strength import StrengthClassifier, keyframe_features
 from bayesmotion.data.motion import MotionDataset
 from bayesmotion.emotion.infer import infer_emotion
 from bayesmotion.errors import BayesmotionError
-from bayesmotion.model.params import STYLE_PREFIX
+from bayesmotion.model.params import STYLE_PREFIX, log_dirichlet
 from bayesmotion.model.spec import HGPDM
 
 
@@ -112,13 +112,6 @@ def uniform_simplex_points(K: int, n: int = 8192, seed: int = 0) -> np.ndarray:
 _LADDER = (10.0, 30.0, 100.0, 300.0, 1e3, 3e3, 1e4, 3e4, 1e5, 3e5)
 
 
-def _log_dirichlet(W, alpha) -> np.ndarray:
-    from scipy.special import gammaln
-
-    W = np.clip(W, 1e-300, None)
-    return (np.sum((alpha - 1.0) * np.log(W), -1) + gammaln(alpha.sum()) - gammaln(alpha).sum())
-
-
 def tempering_proposal(center, n_uniform: int = 8192, n_per_rung: int = 2048,
                        ladder=_LADDER, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Points on the simplex and their proposal log-density, for :func:`tempered_hpd_levels`.
@@ -143,7 +136,7 @@ def tempering_proposal(center, n_uniform: int = 8192, n_per_rung: int = 2048,
                        + [rng.dirichlet(a, size=n_per_rung) for a in alphas[1:]])
     W = np.clip(W, 1e-300, None)
     W = W / W.sum(1, keepdims=True)
-    parts = np.stack([_log_dirichlet(W, a) + np.log(n / len(W))
+    parts = np.stack([np.asarray(log_dirichlet(W, a)) + np.log(n / len(W))
                       for a, n in zip(alphas, counts, strict=True)])
     return W, np.logaddexp.reduce(parts, axis=0)
 
@@ -497,8 +490,10 @@ def interval_coverage(truth, mean, var, qs=(0.5, 0.9), fps: float = 1.0, n_obser
     """How often the truth falls inside central Gaussian predictive intervals, per horizon.
 
     Args:
-        truth, mean, var: (..., T, ...) arrays with time on axis ``-3`` (joint positions
-            (A, T, J, 3)) -- any layout whose axis -3 is time.
+        truth: (..., T, ...) array with time on axis ``-3`` (joint positions (A, T, J, 3)) --
+            any layout whose axis -3 is time.
+        mean: predictive mean, same layout.
+        var: predictive variance, same layout.
         qs: nominal levels.
         fps: frame rate (horizons are reported in seconds).
         n_observed: leading frames copied from data (excluded: zero variance there).

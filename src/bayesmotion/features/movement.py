@@ -138,7 +138,8 @@ def movement_features_from_positions(
         fps: frames per second.
         window: moving-average length in seconds for ``speed_lowpass`` and ``curvature``.
         min_speed: L/s below which the root path's curvature is set to 0.
-        contact_height, contact_speed: foot-contact thresholds in L and L/s.
+        contact_height: foot-contact height threshold in L.
+        contact_speed: foot-contact speed threshold in L/s.
 
     Returns:
         dict with the keys of the module table.

@@ -21,10 +21,10 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         n_walkers: emcee walkers (default ``2 * ndim + 2``, even, ndim counting every
             sampled coordinate). When ``factorise``, both ensembles have this many walkers.
         n_steps: emcee steps per walker (NUTS: samples per chain after as many warm-up steps).
-        burn, thin: discarded leading steps and thinning; by default chosen from the integrated
-            autocorrelation time tau (burn = 2 max tau, thin = max(1, min tau / 2)). NUTS:
-            ``burn`` is the number of warm-up (adaptation) steps, default ``n_steps``; 0 means
-            no step-size or mass-matrix adaptation.
+        burn: discarded leading steps; by default chosen from the integrated autocorrelation
+            time tau (burn = 2 max tau). NUTS: the number of warm-up (adaptation) steps,
+            default ``n_steps``; 0 means no step-size or mass-matrix adaptation.
+        thin: thinning; by default max(1, min tau / 2).
         seed: seeds the walker ball, the moves and NUTS.
         backend: path of an emcee HDF5 file. An existing file with the same dimensions is resumed
             from its last step until it holds ``n_steps`` steps (nothing already saved is lost).

@@ -104,9 +104,11 @@ class Rollout:
     """Generated motion with its predictive uncertainty. Shapes: T frames, A actors, S samples.
 
     Attributes:
-        fps: frame rate. styles: factor -> (T, K) coordinates used. extrapolated: any style
-        outside the simplex. start: description of the start state. n_observed: leading frames
-        copied from data (zero variance).
+        fps: frame rate.
+        styles: factor -> (T, K) coordinates used.
+        extrapolated: any style outside the simplex.
+        start: description of the start state.
+        n_observed: leading frames copied from data (zero variance).
         I, I_var: (T, Q_I) mean latent and its one-step predictive variance (incl. noise;
             the same for every dimension of one GP layer).
         variance_parts: posterior-predictive rollouts only: space -> {"within", "between"}

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import jax.numpy as jnp
 import numpy as np
 import numpyro.distributions as dist
+from jax.scipy.special import gammaln
 from numpyro.distributions.transforms import StickBreakingTransform
 
 from bayesmotion.errors import BayesmotionError
@@ -150,15 +151,29 @@ def log_prior_hyper(params: dict, priors: Priors, order: int) -> jnp.ndarray:
     return lp
 
 
-def log_prior_style(params: dict, style_prior: StylePrior) -> jnp.ndarray:
-    """Dirichlet log-density of free style vectors plus the stick-breaking log-Jacobian."""
+def log_dirichlet(s, conc) -> jnp.ndarray:
+    """log Dirichlet(s | conc) over the last axis, (..., K) -> (...): the one style prior.
+
+    ``s`` is clipped away from exact zeros (float underflow at extreme stick coordinates) so
+    the density stays finite."""
+    s = jnp.clip(jnp.asarray(s), 1e-300, 1.0)
+    conc = jnp.asarray(conc)
+    return (jnp.sum((conc - 1.0) * jnp.log(s), -1) + gammaln(jnp.sum(conc, -1))
+            - jnp.sum(gammaln(conc), -1))
+
+
+def style_log_prior(params: dict, concentration: dict) -> jnp.ndarray:
+    """Dirichlet log-density of every free style vector in ``params`` (keys
+    ``STYLE_PREFIX + factor``, unconstrained ``(..., K - 1)``) plus the stick-breaking
+    log-Jacobian; ``concentration[factor]`` broadcasts against the vectors' simplex points."""
     lp = 0.0
     for key, u in params.items():
         if key.startswith(STYLE_PREFIX):
-            conc = style_prior.concentration[key[len(STYLE_PREFIX):]]
-            s = style_to_simplex(u)
-            # clip away exact zeros (float underflow at extreme u) so the density stays finite
-            s = jnp.clip(s, 1e-300, 1.0)
-            lp = lp + jnp.sum(dist.Dirichlet(jnp.asarray(conc)).log_prob(s))
-            lp = lp + style_log_jacobian(u)
+            conc = concentration[key[len(STYLE_PREFIX):]]
+            lp = lp + jnp.sum(log_dirichlet(style_to_simplex(u), conc)) + style_log_jacobian(u)
     return lp
+
+
+def log_prior_style(params: dict, style_prior: StylePrior) -> jnp.ndarray:
+    """Dirichlet log-density of free style vectors plus the stick-breaking log-Jacobian."""
+    return style_log_prior(params, style_prior.concentration)

@@ -51,8 +51,10 @@ def animate(trial_or_motions, path: str | os.PathLike, fps: float | None = None,
         hide: joints not drawn, by name or row (default: Bandai's fixed ``joint_Root``).
         colors: one colour per actor.
         title: shown above the frame counter.
-        figsize, dpi: frame size in inches and dots per inch.
-        elev, azim: view angles in degrees.
+        figsize: frame size in inches.
+        dpi: dots per inch.
+        elev: view elevation in degrees.
+        azim: view azimuth in degrees.
     Returns:
         the path written; it holds ``ceil(T / stride)`` images, each titled with its frame.
     Raises:

@@ -181,7 +181,8 @@ def frame_axes(ax: Axes, positions: list[np.ndarray], elev: float = 15.0,
     Args:
         ax: a 3-D Axes.
         positions: arrays (..., 3) of data positions to keep in view.
-        elev, azim: view angles in degrees.
+        elev: view elevation in degrees.
+        azim: view azimuth in degrees.
     """
     pts = to_plot(np.concatenate([p.reshape(-1, 3) for p in positions]))
     pts = pts[np.all(np.isfinite(pts), axis=1)]
@@ -247,7 +248,8 @@ def plot_pose(motions_or_positions, frame: int = 0, ax: Axes | None = None, *,
         title: Axes title (default ``"frame k"``).
         path: also save the figure here (PNG, SVG, PDF by suffix), atomically.
         dpi: resolution of the saved file.
-        elev, azim: view angles in degrees.
+        elev: view elevation in degrees.
+        azim: view azimuth in degrees.
     Returns:
         the Axes.
     """
@@ -283,7 +285,9 @@ def plot_bands(t, mean, sd, labels: Sequence[str], path: str | os.PathLike | Non
         path: also save the figure here (PNG by default), atomically.
         ax: a 2-D Axes to draw into; a new figure when None.
         k: band half-width in standard deviations (2: about 95% under a Gaussian).
-        title, xlabel, ylabel: Axes text.
+        title: Axes title.
+        xlabel: x-axis label.
+        ylabel: y-axis label.
         dpi: resolution of the saved file.
     Returns:
         the Axes.

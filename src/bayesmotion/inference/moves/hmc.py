@@ -7,8 +7,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-# over walkers, compiled once per shape (not per sampler)
-
 class EnsembleHMC(emcee.moves.Move):
     """Hamiltonian Monte Carlo on a block of coordinates, preconditioned by the ensemble.
 

@@ -5,8 +5,6 @@ from __future__ import annotations
 import emcee
 import numpy as np
 
-# over walkers, compiled once per shape (not per sampler)
-
 class IndependenceMove(emcee.moves.MHMove):
     """Independence Metropolis on a block of coordinates, with a fixed multivariate-t proposal
     or a fixed mixture of them.

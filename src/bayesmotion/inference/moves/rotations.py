@@ -31,12 +31,12 @@ from jax.flatten_util import ravel_pytree
 
 from bayesmotion.model.params import (
     STYLE_PREFIX,
+    log_dirichlet,
     simplex_to_style,
     style_log_jacobian,
     style_to_simplex,
 )
 
-# over walkers, compiled once per shape (not per sampler)
 # over walkers, compiled once per shape (not per sampler)
 _TO_S = jax.jit(jax.vmap(style_to_simplex))
 
@@ -127,7 +127,7 @@ class StyleRotations(emcee.moves.Move):
             if not moved.any():
                 continue
             u_new = np.asarray(_TO_U(jnp.asarray(S)), dtype=float)
-            change = (_log_dirichlet_kernel(S, conc) - _log_dirichlet_kernel(S0, conc)
+            change = (_log_prior_rows(S, conc) - _log_prior_rows(S0, conc)
                       + np.asarray(_LOG_JAC(jnp.asarray(u_new)))
                       - np.asarray(_LOG_JAC(jnp.asarray(u))))
             rows = np.flatnonzero(ok)[moved]
@@ -139,11 +139,11 @@ class StyleRotations(emcee.moves.Move):
     def _rotate(self, S, conc, random) -> np.ndarray:
         """``n_rotations`` Metropolis steps S -> S Q (vectorised over walkers)."""
         n, K, _ = S.shape
-        logp = _log_dirichlet_kernel(S, conc)
+        logp = _log_prior_rows(S, conc)
         for _ in range(self.n_rotations):
             S_new = S @ plane_rotations(self.scale * random.randn(n, K - 1, K - 1))
             inside = np.all(S_new > 0, axis=(1, 2))
-            logp_new = np.where(inside, _log_dirichlet_kernel(np.where(inside[:, None, None],
+            logp_new = np.where(inside, _log_prior_rows(np.where(inside[:, None, None],
                                                                        S_new, S), conc),
                                 -np.inf)
             take = logp_new - logp > np.log(random.rand(n))
@@ -154,6 +154,6 @@ class StyleRotations(emcee.moves.Move):
         return S
 
 
-def _log_dirichlet_kernel(S, conc) -> np.ndarray:
-    """sum over rows of (conc - 1) . log s: the Dirichlet log-density up to its constant."""
-    return np.sum((conc - 1.0) * np.log(np.clip(S, 1e-300, None)), axis=(1, 2))
+def _log_prior_rows(S, conc) -> np.ndarray:
+    """(W, K, K) style matrices -> (W,) their Dirichlet log-prior, summed over levels."""
+    return np.asarray(jnp.sum(log_dirichlet(jnp.asarray(S), jnp.asarray(conc)), -1))
