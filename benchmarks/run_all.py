@@ -10,6 +10,8 @@ and the settings. The environment is left alone by default (``--blas-threads``),
 applies its own OpenBLAS thread policy, as for a user (the
 ``blas_threads`` benchmark measures the default-thread case). ``results/README.md`` is then
 rebuilt from every result file present: a markdown table of the headline numbers and targets.
+The same table, and the interpolation study's table, are written into the documentation page
+``docs/results.md`` between its markers (``--docs``, alias ``--readme``, does only that).
 
 Adding a benchmark (e.g. emotion inference seconds per clip, the interpolation study): write
 ``benchmarks/<name>.py`` with ``run(quick) -> dict`` -- put the settings under ``"settings"``
@@ -93,7 +95,7 @@ def run_child(name: str, quick: bool, blas_threads: str = "inherit") -> dict:
     return res
 
 
-# --------------------------------------------------------------------------- README
+# --------------------------------------------------------------------------- README and docs
 def _fmt(v) -> str:
     if v is None:
         return "--"
@@ -154,17 +156,42 @@ def readme(results: dict[str, dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-README_MAIN = HERE.parent / "README.md"
+DOCS_RESULTS = HERE.parent / "docs" / "results.md"
 START, END = "<!-- benchmarks:start -->", "<!-- benchmarks:end -->"
+STUDY_START, STUDY_END = "<!-- study:start -->", "<!-- study:end -->"
 
 
-def embed(readme_text: str, table: str) -> str:
-    """The project README with the text between the benchmark markers replaced by ``table``."""
-    if START not in readme_text or END not in readme_text:
-        return readme_text
-    head, rest = readme_text.split(START, 1)
-    _, tail = rest.split(END, 1)
-    return f"{head}{START}\n{table}{END}{tail}"
+def embed(text: str, table: str, start: str = START, end: str = END) -> str:
+    """``text`` with what lies between the markers ``start`` and ``end`` replaced by ``table``
+    (unchanged when the markers are missing)."""
+    if start not in text or end not in text:
+        return text
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    return f"{head}{start}\n{table}{end}{tail}"
+
+
+def headline_table(results: dict[str, dict]) -> str:
+    """The headline table of ``readme`` from "Machine:" on (no title, no file note)."""
+    return readme(results).split("\n\n", 2)[2]
+
+
+def study_table() -> str | None:
+    """The interpolation study's table and conclusion, rendered from its committed JSON by
+    ``study_interpolation.markdown_table``; None when there is no result file."""
+    path = RESULTS / "study_interpolation.json"
+    if not path.exists():
+        return None
+    import study_interpolation  # imports bayesmotion: only when the page is rendered
+
+    return study_interpolation.markdown_table(json.loads(path.read_text())) + "\n"
+
+
+def render_docs(page: str, results: dict[str, dict]) -> str:
+    """The documentation page ``page`` with both generated blocks brought up to date."""
+    page = embed(page, headline_table(results))
+    study = study_table()
+    return page if study is None else embed(page, study, STUDY_START, STUDY_END)
 
 
 def load_results() -> dict:
@@ -177,15 +204,14 @@ def load_results() -> dict:
 
 
 def write_readme() -> None:
-    """results/README.md from every result file, and the same table in the project README
-    (between the benchmark markers)."""
-    text = readme(load_results())
-    write_text(RESULTS / "README.md", text)
-    if README_MAIN.exists():
-        table = text.split("\n\n", 2)[2]  # from "Machine:" on (no title, no file note)
-        new = embed(README_MAIN.read_text(), table)
-        if new != README_MAIN.read_text():
-            write_text(README_MAIN, new)
+    """results/README.md from every result file, and the generated blocks of docs/results.md."""
+    results = load_results()
+    write_text(RESULTS / "README.md", readme(results))
+    if DOCS_RESULTS.exists():
+        old = DOCS_RESULTS.read_text()
+        new = render_docs(old, results)
+        if new != old:
+            write_text(DOCS_RESULTS, new)
 
 
 def main(argv=None) -> int:
@@ -199,8 +225,9 @@ def main(argv=None) -> int:
                          "user: one OpenBLAS thread, except inside its large factorisations, "
                          "see bayesmotion._config; a number sets it for every library); "
                          "recorded in each JSON's machine.thread_env")
-    ap.add_argument("--readme", action="store_true",
-                    help="only rebuild results/README.md from the JSON files")
+    ap.add_argument("--docs", "--readme", dest="docs", action="store_true",
+                    help="only rebuild results/README.md and the tables of docs/results.md "
+                         "from the JSON files (--readme: the same)")
     ap.add_argument("--worker", choices=BENCHMARKS, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
@@ -209,7 +236,7 @@ def main(argv=None) -> int:
         res = run_one(a.worker, a.quick)
         write_json(RESULTS / f"{a.worker}.json", res)  # an error is recorded in the JSON
         return 0
-    if a.readme:
+    if a.docs:
         write_readme()
         return 0
     failed = []
@@ -223,7 +250,7 @@ def main(argv=None) -> int:
             failed.append(name)
             print(f"    {res.get('error')}", flush=True)
         write_readme()  # after each benchmark, so a stopped run still leaves a consistent table
-    print(f"wrote {RESULTS}/README.md")
+    print(f"wrote {RESULTS}/README.md and {DOCS_RESULTS}")
     return 1 if failed else 0
 
 

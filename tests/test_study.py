@@ -98,7 +98,7 @@ def test_quick_study_scores_every_method_at_every_s(bandai_root, tmp_path):
 
 
 def test_the_readme_table_is_the_committed_full_study_output():
-    """The README's study table must be the one rendered from results/study_interpolation.json
+    """The results page's study table must be the one rendered from results/study_interpolation.json
     (python benchmarks/study_interpolation.py --table), not typed by hand."""
     root = Path(__file__).resolve().parents[1]
     path = root / "benchmarks" / "results" / "study_interpolation.json"
@@ -106,4 +106,4 @@ def test_the_readme_table_is_the_committed_full_study_output():
         pytest.skip("no committed study result")
     result = json.loads(path.read_text())
     assert result["mode"] == "full", "the committed study result must come from a full run"
-    assert study.markdown_table(result) in (root / "README.md").read_text()
+    assert study.markdown_table(result) in (root / "docs" / "results.md").read_text()
