@@ -17,7 +17,7 @@ busy-wait; with the cores shared (XLA's own pool, other processes) the threaded 
 5-21x slower than one thread on the 2-core target machine (benchmarks/results/blas_threads.json).
 bayesmotion therefore sets ``OPENBLAS_NUM_THREADS=1`` unless the caller set it. It applies when
 SciPy's OpenBLAS is loaded after bayesmotion is imported (the usual case: jaxlib loads it on the
-first factorisation). The exception is :func:`bayesmotion.gp.linalg`, which
+first factorisation). The exception is :func:`bayesmotion.gp.linalg.cholesky_inverse`, which
 raises the count for its own calling thread (``openblas_set_num_threads_local``) while XLA's
 pool is blocked on it, and only while other processes leave the cores idle. To keep every
 BLAS call on one thread (e.g. when running several bayesmotion processes side by side), set
@@ -29,7 +29,7 @@ import os
 #: True when bayesmotion chose the one-thread default (the caller had not set it; a value this
 #: module set in a parent process and its children inherited counts as not set, hence the
 #: marker variable); then the large factorisations of
-#: :func:`bayesmotion.gp.linalg`, which run while XLA's pool waits on them, use
+#: :func:`bayesmotion.gp.linalg.cholesky_inverse`, which run while XLA's pool waits on them, use
 #: every core for their own thread only.
 _MARK = "BAYESMOTION_SET_OPENBLAS_NUM_THREADS"
 BLAS_THREADS_DEFAULTED = os.environ.get("OPENBLAS_NUM_THREADS") in (None, os.environ.get(_MARK))

@@ -48,7 +48,7 @@ def _split(ds):
 def _coverage(model, trial, ep, qs=(0.5, 0.9)):
     """Coverage of the trial's true joint positions by the predictive intervals when generating
     from its inferred start (analytic one-step variance + the sampled rollouts' spread), overall
-    and per one-second horizon (:func:`bayesmotion.evaluation.evaluate`)."""
+    and per one-second horizon (:func:`bayesmotion.evaluation.evaluate.interval_coverage`)."""
     r = model.generate(emotion=trial.labels["emotion"], couple=trial.labels.get("couple"),
                        n_frames=trial.n_frames, n_samples=8,
                        start=ep.latents["I"][:model.spec.order])

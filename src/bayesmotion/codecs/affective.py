@@ -1,6 +1,6 @@
 """Per-frame affective pose features as a model's pose space (``HGPDM(pose_space="affective")``).
 
-A joint-angle codec (:class:`~bayesmotion.codecs.pose`) makes the bottom
+A joint-angle codec (:class:`~bayesmotion.codecs.pose.PoseCodec`) makes the bottom
 layer explain every joint angle, and between clips of one actor the joint angles change most
 with what the actor does (walking ahead, back, sideways), not with the emotion. The 18 pose
 features of Bhattacharya et al. (2021; :mod:`bayesmotion.features.pose`) are invariant to

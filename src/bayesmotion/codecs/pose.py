@@ -538,7 +538,7 @@ class PoseCodec:
     def _check_rig(self, prefix: str) -> None:
         J, C = self.skeleton.n_joints, self.skeleton.n_channels
 
-        def bad(msg):  # bayesmotion.model.io names the file and raises ModelFileError
+        def bad(msg):  # bayesmotion.model.io.load names the file and raises ModelFileError
             raise ValueError(f"{prefix.rstrip('/')}: {msg}")
 
         if self.frames is not None:

@@ -206,7 +206,7 @@ def channel_categories(skeleton: Skeleton, categories: Mapping[str, str] | None 
 
 def motion_mover(*motions: Motion) -> int:
     """The joint carrying the motions' global position and heading: the one whose horizontal
-    position channels travel most (:func:`bayesmotion.data.motion`)."""
+    position channels travel most (:func:`bayesmotion.data.motion.find_mover`)."""
     return find_mover(list(motions))
 
 

@@ -419,7 +419,7 @@ def lateral_ratio(motion: Motion, plan: MirrorPlan | None = None) -> float:
     """Mean sideways speed towards the actor's left, as a fraction of the mean horizontal speed
     (about +0.5 for a diagonal walk to the left, -0.5 to the right, near 0 straight ahead or
     back; mirroring negates it). The mover is the joint that carries the translation
-    (:func:`~bayesmotion.data.motion`); the actor's left is the direction
+    (:func:`~bayesmotion.data.motion.find_mover`); the actor's left is the direction
     from the right joints to their left partners, summed over the pairs that hang from the
     midline (hip joints, shoulders)."""
     sk = motion.skeleton

@@ -18,7 +18,7 @@
    predictive likelihoods). With a Posterior as ``model`` this is repeated for several posterior
    draws of the hyperparameters and the samples are pooled (a mixture over draws).
    With the latents fixed, the density is a low-degree polynomial in the styles; it is expanded
-   once per clip (bayesmotion.emotion.density), so each walker step costs
+   once per clip (bayesmotion.emotion.density.style_expansion), so each walker step costs
    O(T P D) instead of O(T N^2).
 
 Arrays are padded to frame buckets (four sizes per doubling, :func:`bayesmotion.shapes.padded_length`) so
@@ -173,7 +173,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             (generalised Bayes). 1, the default, is the plain posterior. Below 1 widens it to
             allow for model misspecification: with many frames the plain posterior is often
             narrower than the distance from its mean to the true label. Choose eta from labelled
-            data with :func:`bayesmotion.evaluation.evaluate`.
+            data with :func:`bayesmotion.evaluation.evaluate.calibrate_hpd_power`.
         emotion_starts: "vertices" (the default: one projection per level with the emotion
             held at that level; the level of largest Laplace evidence of the latents is
             chosen (bayesmotion.emotion.projection) and its latents and free emotion are refined
@@ -340,7 +340,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
 
 def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc):
     """The emotion level with the largest posterior probability under the Laplace evidence of
-    each level (bayesmotion.emotion.projection) and the prior probability that the level
+    each level (bayesmotion.emotion.projection.project_levels) and the prior probability that the level
     is the largest coordinate; its projection, with the free emotion set just inside its
     vertex (the style sampler starts from the styles' mode at these latents)."""
     out = project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc)

@@ -3,7 +3,7 @@ L-BFGS, one jitted call per 100-iteration round), and the Laplace evidence of ea
 level.
 
 The clip's latents X*, I* and its free style coordinates are found by MAP of the clip's
-predictive log-density (:func:`bayesmotion.emotion.density`) with the model fixed,
+predictive log-density (:func:`bayesmotion.emotion.density.clip_log_density`) with the model fixed,
 starting from the latents of the nearest training frames.
 
 ``project_levels`` answers "which emotion level explains the clip" as a Bayesian model choice:

@@ -2,7 +2,7 @@
 
 bayesmotion keeps scipy's OpenBLAS on one thread (``_config``). :func:`blas_threads` raises it
 to the core count for the calling thread only, around the LAPACK calls of
-:func:`bayesmotion.gp.linalg`, and only while no other process keeps the cores
+:func:`bayesmotion.gp.linalg.cholesky_inverse`, and only while no other process keeps the cores
 busy.
 """
 

@@ -72,7 +72,7 @@ def _primal(L, ok, Y):
 
 
 def _with_inverse(K, Y):
-    """Under differentiation: K^-1 once (:func:`bayesmotion.gp.linalg`); the VJP
+    """Under differentiation: K^-1 once (:func:`bayesmotion.gp.linalg.cholesky_inverse`); the VJP
     needs it (d log|K| / dK), and it gives alpha = K^-1 Y in one product and the quadratic form
     as sum(Y o alpha). Returns (value, K^-1, alpha, ok)."""
     diag, Kinv = cholesky_inverse(K)

@@ -6,7 +6,7 @@ factor's diagonal (for log|K|):
 - on CPU, for N >= 256, by LAPACK's potrf + potri (scipy's OpenBLAS) through a host callback,
   with OpenBLAS's threads raised to the core count for the calling thread only (XLA's pool is
   blocked on the callback meanwhile) while no other process keeps the cores busy
-  (:func:`bayesmotion.gp.blas`): 17-19 ms at N = 1000 on the 2-core target, against
+  (:func:`bayesmotion.gp.blas.blas_threads`): 17-19 ms at N = 1000 on the 2-core target, against
   33-41 ms for the XLA path below (jaxlib's one-thread potrf takes 11 ms of it, the blocked
   trtri + lauum 24 ms), and 28-30 ms for the same LAPACK calls on one thread;
 - elsewhere (GPU, TPU, small blocks where a callback's overhead dominates) by XLA: Cholesky,

@@ -41,7 +41,7 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         moves: emcee moves (default: ``emcee.moves.DEMove()``, mixing faster than the stretch
             move in tens of dimensions, each step followed by exact Metropolis steps along the
             style vectors' rotation orbits, where the likelihood is constant:
-            :class:`bayesmotion.inference.moves`; then the independence step, see
+            :class:`bayesmotion.inference.moves.StyleRotations`; then the independence step, see
             ``independence``). When ``factorise``, the moves of the
             (beta, alpha, styles) ensemble, whose coordinates are the target's without gamma's
             (``Target(fitted, block="upper")``); gamma's ensemble always uses DE.
@@ -57,7 +57,7 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             sampler stays the default.
         gamma_every: steps of the upper chain per step of the gamma chain.
         hmc: add, after the default moves, two ensemble-preconditioned HMC steps
-            (:class:`bayesmotion.inference.moves`): one on the coordinates the style
+            (:class:`bayesmotion.inference.moves.EnsembleHMC`): one on the coordinates the style
             rotations do not move (the hyperparameters and two-level style vectors: nearly
             Gaussian but strongly correlated, where DE crawls, autocorrelation time ~300 steps
             at the demo size), one on the rotated style vectors (heavy-tailed: smaller steps).
@@ -68,7 +68,7 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             coordinate (an emotion style coordinate, R-hat 1.57, ESS 113) was no better than
             the default's at 1,000 steps. Not the default until a long run shows the gain.
         independence: add, after DE and the rotations, an independence Metropolis step
-            (:class:`bayesmotion.inference.moves`) on the coordinates the rotations do not
+            (:class:`bayesmotion.inference.moves.IndependenceMove`) on the coordinates the rotations do not
             move, plus the rotated ones the likelihood pins (Laplace sd < 0.1): a multivariate t (20
             degrees of freedom) proposal from the Laplace approximation at the conditional MAP for
             the first min(150, n_steps // 4) steps, then from the sample mean and covariance of that
@@ -102,11 +102,11 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
                                f"does not use them (NUTS is already Hamiltonian)")
     if hmc and moves is not None:
         raise BayesmotionError("hmc=True adds EnsembleHMC to the default moves; with your own "
-                               "moves, add bayesmotion.inference.moves to them instead")
+                               "moves, add bayesmotion.inference.moves.EnsembleHMC to them instead")
     if independence and (method != "emcee" or moves is not None or factorise):
         raise BayesmotionError("independence=True adds steps to the joint emcee sampler's "
                                "default moves; it does not apply with method='nuts', your own "
-                               "moves or factorise=True (add bayesmotion.inference.moves "
+                               "moves or factorise=True (add bayesmotion.inference.moves.IndependenceMove "
                                "to your moves instead)")
     if independence is None:
         independence = method == "emcee" and moves is None and not factorise

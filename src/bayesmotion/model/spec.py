@@ -39,7 +39,7 @@ class HGPDM:
             encoding, training clips and new clips alike (label-free;
             bayesmotion.data.mirror.canonical_side); generated motion is on the left side.
         pose_space: what the bottom layer models: "angles" (joint angles and the root's
-            motion, :class:`~bayesmotion.codecs.pose`; the model generates
+            motion, :class:`~bayesmotion.codecs.pose.PoseCodec`; the model generates
             motion) or "affective" (the 18 affective pose features of every frame,
             :mod:`bayesmotion.codecs.affective`; invariant to the body's position, heading
             and size, for inferring emotion across actions; such a model cannot generate

@@ -45,7 +45,7 @@ def animate(trial_or_motions, path: str | os.PathLike, fps: float | None = None,
         stride: draw every ``stride``-th frame.
         spread: extra poses over the same frames (posterior samples: Trials, Motions,
             ``(T, J, 3)`` or ``(S, T, J, 3)`` arrays), drawn faintly
-            (colours: :func:`bayesmotion.viz.plots`).
+            (colours: :func:`bayesmotion.viz.plots.spread_colors`).
         parents: (J,) parents for raw positions.
         end_sites: also draw motions' End Sites.
         hide: joints not drawn, by name or row (default: Bandai's fixed ``joint_Root``).

@@ -1,7 +1,7 @@
 """Exact rotations of the style vectors along their likelihood-flat orbits.
 
 The likelihood sees a factor's style vectors only through their inner products (the kernels'
-``prod_f s_f^T s_f'``, :func:`bayesmotion.gp.kernels`), i.e. through the Gram matrix
+``prod_f s_f^T s_f'``, :func:`bayesmotion.gp.kernels.style_gram`), i.e. through the Gram matrix
 ``S S^T`` of the level vectors ``S: (K, K)`` (one row per level, on the simplex). Every
 orthogonal ``Q`` with ``Q 1 = 1`` maps rows on the simplex's plane to rows on it and leaves
 ``S Q Q^T S^T = S S^T``: the likelihood is constant along these rotations, and only the Dirichlet
