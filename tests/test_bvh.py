@@ -487,7 +487,7 @@ def test_fuzz_random_text_and_bytes(text):
     ({"end_sites": {1: np.array([np.inf, 0, 0])}}, "finite"),
 ])
 def test_skeletons_that_bvh_cannot_hold_are_refused(change, match):
-    """Such skeletons used to be accepted and written to BVH files that read_bvh rejects."""
+    """A skeleton that a BVH file cannot hold is refused, not written to a file read_bvh rejects."""
     from bayesmotion.data.skeleton import Skeleton
 
     base = {"names": ("root", "arm"), "parents": (-1, 0),

@@ -243,9 +243,9 @@ def test_any_style_gives_a_valid_motion(T, speed, shift, amp):
 
 
 def test_the_joint_carrying_the_heading_is_never_scaled_or_lagged():
-    """Bandai translates and turns Hips below a static joint_Root; Hips used to fall in the
-    torso category, so scaling the torso turned the walker's facing (by up to 11 degrees on a
-    real walk) while its path stayed the same."""
+    """Bandai translates and turns Hips below a static joint_Root; were Hips in the torso
+    category, scaling the torso would turn the walker's facing (by up to 11 degrees on a real
+    walk) while its path stayed the same."""
     from bayesmotion.data.emotion import channel_categories, motion_mover, scale_amplitude
 
     names = ["joint_Root", "Hips", "Spine", "Head", "UpperLeg_L"]

@@ -201,8 +201,8 @@ def test_mean_only_path_gives_the_mean_rollout_of_the_full_path(tiny_model):
 
 
 def test_unknown_style_factors_and_untrained_levels_are_refused(tiny_model):
-    """A misspelt factor used to be ignored silently, and a level with no training trials gave
-    a rollout that collapsed to zero after the start frames."""
+    """A misspelt factor is not ignored, and a level with no training trials (whose rollout
+    would collapse to zero after the start frames) is refused."""
     from .conftest import make_tiny_dataset
 
     with pytest.raises(BayesmotionError, match="no style factor \\['contnet'\\]"):

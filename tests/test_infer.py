@@ -517,7 +517,7 @@ def test_tempered_hpd_levels_refuse_posteriors_sharper_than_the_points():
     h = tempered_hpd_levels(ll(U)[None], ll(truth[None]), etas)[:, 0]
     assert np.isfinite(h[0]) and np.isfinite(h[1])
     assert np.isnan(h[2]) and np.isnan(h[3])
-    # the old estimate (no effective-sample-size check) called the truth covered at eta = 100
+    # without the effective-sample-size check the estimate calls the truth covered at eta = 100
     assert tempered_hpd_levels(ll(U)[None], ll(truth[None]), etas, min_ess=0)[3, 0] <= 0.9
     cal = calibrate_hpd_power(np.tile(ll(U), (3, 1)), np.repeat(ll(truth[None]), 3), 0.9)
     assert cal < 1.0
@@ -639,8 +639,8 @@ def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
 
 def test_leave_one_out_fails_on_unreadable_baseline_features_before_any_fit(tiny_data,
                                                                              monkeypatch):
-    """A skeleton the affective features cannot read must fail at once (it used to fail after
-    every fold's refit and inference, losing them)."""
+    """A skeleton the affective features cannot read must fail at once, not after
+    every fold's refit and inference (which would be lost)."""
     from bayesmotion.evaluation import evaluate
 
     def no_fit(*a, **k):

@@ -45,8 +45,8 @@ def test_log_posterior_is_sum_of_layers_and_blocked_equals_dense(fitted):
     assert float(lp(p, 1e-8)) == pytest.approx(sum(float(v) for v in terms.values()), rel=1e-12)
     dense = LogPosterior(fitted.spec, fitted.data, dense=True)
     # at every rung of the jitter ladder: the blocked path adds the dense path's jitter (relative
-    # to the mean diagonal over the real rows) and leaves its padding rows untouched (it used to
-    # differ by 0.13 nats per layer at jitter 1e-2)
+    # to the mean diagonal over the real rows) and leaves its padding rows untouched (jitter on
+    # the padding rows would differ by 0.13 nats per layer at jitter 1e-2)
     for j in (0.0, *JITTER_LADDER):
         np.testing.assert_allclose(float(dense(p, j)), float(lp(p, j)), rtol=1e-10, err_msg=j)
     g_dense = jax.grad(lambda q: dense(q, 1e-4))(p)
@@ -315,8 +315,8 @@ def test_saved_files_get_the_usual_permissions(fitted, tmp_path):
 
 
 def test_an_objective_that_is_never_finite_raises_instead_of_converging():
-    """With no finite evaluation the optimiser used to stop at once and report converged=True
-    at the start point; it must say what failed instead."""
+    """With no finite evaluation the optimiser must say what failed, not stop at once and
+    report converged=True at the start point."""
     logp = lambda p, j: jnp.sum(p["a"]) - jnp.inf  # noqa: E731
     with pytest.raises(bm.BayesmotionError, match="not finite at any point"):
         map_optimize(logp, {"a": np.zeros(3)}, max_iter=5, progress=False)

@@ -196,9 +196,8 @@ def test_real_bandai_pose_upright(bandai_files):
 
 
 def test_spread_samples_hide_what_their_actor_hides_and_take_its_colour():
-    """Raw sample arrays used to draw Bandai's static joint_Root (a bone from the world origin
-    to the hips), and the CLI/demo listed samples actor by actor, so half took the other
-    actor's colour."""
+    """Sample arrays do not draw Bandai's static joint_Root (a bone from the world origin to
+    the hips), and each sample takes its own actor's colour."""
     from bayesmotion.viz.plots import scene, spread_colors
 
     a, b = small_motion("a", root="joint_Root"), small_motion("b", root="joint_Root", shift=5)

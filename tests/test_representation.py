@@ -192,8 +192,9 @@ def test_one_actor_codec_fields_survive_save_and_load(bandai_root, tmp_path):
 
 
 def test_decode_defaults_to_the_rate_the_codec_was_fitted_at(tmp_path):
-    """decode used to assume 30 fps: a 15 fps walk came back with its root integrated at 1/30 s
-    per frame, labelled 30 fps. The rate is also kept in model files."""
+    """decode uses the codec's rate, not 30 fps (a 15 fps walk must not come back with its
+    root integrated at 1/30 s per frame, labelled 30 fps). The rate is also kept in model
+    files."""
     import bayesmotion as bm
 
     trial = bm.load_handshakes(fps=5.0)[0]

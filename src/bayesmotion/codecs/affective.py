@@ -8,7 +8,7 @@ translation, rotation and uniform scale of the body and describe posture: angles
 shoulders and root, and ratios of distances and triangle areas between hands, feet, head and
 torso. With them as Y the same hierarchy (GP-LVM, style interaction layer, second-order GPDM)
 models how the posture evolves, and an emotion inferred from a clip of an action the training
-clips did not pair with that emotion no longer has to get past the action's joint angles.
+clips did not pair with that emotion does not have to get past the action's joint angles.
 
 The price: the features do not determine a pose, so a model in this space cannot generate
 motion (:meth:`AffectiveCodec.decode` raises). Generation needs a joint-angle model.

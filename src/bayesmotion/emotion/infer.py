@@ -163,7 +163,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             out: each of the ``n_draws`` draws runs ``n_steps // n_draws + 50`` steps (the 50
             covering each chain's burn-in), and their samples are pooled.
         max_iter: L-BFGS iterations of the projection (per start). The default keeps a
-            20-frame handshake under 2 s (session 17, ``benchmarks/infer_speed.py``: median
+            20-frame handshake under 2 s (``benchmarks/results/infer_speed.json``: median
             1.54 s with "vertices", 0.54 s with "nearest"), but the projection usually stops
             at this limit, not at an optimum; the benchmarks use 1000 (on one held-out
             handshake the best optimum improved by 117 nats from 200 to 1000 iterations and
@@ -182,11 +182,11 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             plus one per emotion level, from the nearest frames of that level's training
             trials; the best optimum is kept; K + 1 times the projection's cost). A better
             joint optimum is not always the right label: on the built-in handshakes "levels"
-            read two sad trials as neutral (91.7%, session 13); "vertices" compares every
+            read two sad trials as neutral (91.7%); "vertices" compares every
             level at its own optimum (24/24). On generated clips between two emotions (demo
             model, s in {0, .25, .5, .75, 1}) its mean absolute error in s is 0.030
             (neutral to happy) and 0.065 (sad to angry), against 0.054 and 0.45 with
-            "nearest" (session 17). With "vertices" ``info`` holds ``level_log_evidence``,
+            "nearest". With "vertices" ``info`` holds ``level_log_evidence``,
             ``level_probabilities`` and the Laplace details per level.
     Returns:
         EmotionPosterior.

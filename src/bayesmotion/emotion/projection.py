@@ -131,7 +131,7 @@ def minimize_scaled(params, args, statics, max_iter, round_iter: int = ROUND_ITE
     magnitude above the dynamics' in I. Unscaled, 1000 iterations from the nearest training
     frames got a generated neutral handshake to -7,303 with the emotion held at neutral, where
     the generating latents alone score -9,884; scaled, 300 iterations reach -9,491 (scipy's
-    L-BFGS-B, session 12). Returns (params, a scipy ``OptimizeResult`` built from the last
+    L-BFGS-B). Returns (params, a scipy ``OptimizeResult`` built from the last
     round: ``fun`` (inf if never finite), ``nit`` and ``nfev`` summed over the rounds,
     ``status`` and ``message`` from bayesmotion.optim.lbfgs; no ``jac``)."""
     x0, unravel = ravel_pytree(params)

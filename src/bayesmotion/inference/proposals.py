@@ -49,7 +49,7 @@ def idle_factor_modes(target, centre, cov, block) -> list[dict]:
 
     At the demo size the couple factor has such a mode 1.4 nats below the main one (Laplace
     evidence 1.2 nats lower, i.e. about a quarter of the mass), 4 posterior sd away in each
-    couple coordinate, and DE walkers cross between the two in thousands of steps (session 21).
+    couple coordinate, and DE walkers cross between the two in thousands of steps.
 
     Returns one dict per mode, the main one first: ``x`` (flat), ``cov`` (Laplace), ``logp``,
     ``log_evidence`` (logp + log det(cov) / 2) and ``weight`` (normalised evidence); a search

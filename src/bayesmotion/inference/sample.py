@@ -62,11 +62,8 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             Gaussian but strongly correlated, where DE crawls, autocorrelation time ~300 steps
             at the demo size), one on the rotated style vectors (heavy-tailed: smaller steps).
             A step costs about 18x a DE step at the demo size (8.4 s against 0.46 s: about 4
-            gradients per walker and block). In a 60-step demo-size probe (session 18) the
-            hyperparameters reached R-hat 1.09-1.28 and bulk ESS 180-440 after 40 kept steps,
-            which the default moves reach only after thousands; per second the slowest
-            coordinate (an emotion style coordinate, R-hat 1.57, ESS 113) was no better than
-            the default's at 1,000 steps. Not the default until a long run shows the gain.
+            gradients per walker and block). Off by default: no long run has shown it to
+            mix faster per second than the default moves.
         independence: add, after DE and the rotations, an independence Metropolis step
             (:class:`bayesmotion.inference.moves.IndependenceMove`) on the coordinates the rotations do not
             move, plus the rotated ones the likelihood pins (Laplace sd < 0.1): a multivariate t (20
@@ -77,11 +74,8 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             file resumed with ``backend`` switches where its first run did. One more log-density per
             walker and step (at the demo size 0.74 s per step against 0.46 s). ``None`` (default):
             on for the joint emcee sampler with the default moves, off otherwise; ``True`` with
-            ``method="nuts"``, user ``moves`` or ``factorise`` raises. At the demo size (session 19,
-            54 walkers, ``benchmarks/posterior_convergence.py``) 28% of the second phase's proposals
-            were accepted, and 1,000 steps (743 s) gave max R-hat 1.067 and min bulk ESS 527, where
-            DE and the rotations alone needed 7,000 steps (3,211 s) for 1.12 and 298; R-hat stayed
-            at 1.07-1.09 up to 2,000 steps (walkers stuck on the couple style). Where a
+            ``method="nuts"``, user ``moves`` or ``factorise`` raises. Its measured effect at the demo
+            size is in ``benchmarks/results/posterior_convergence.json``. Where a
             two-level style factor has a second local mode (its vectors near the simplex's
             centre, the factor idle; :func:`idle_factor_modes` searches for one per factor, at
             the cost of one more conditional MAP and Laplace approximation), the proposal is a

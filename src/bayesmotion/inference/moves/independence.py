@@ -26,9 +26,9 @@ class IndependenceMove(emcee.moves.MHMove):
     in one mode proposes a point of another with probability of that mode's weight, a jump that
     local moves (DE) make only by crossing the low-density region between the modes.
 
-    A proposal fitted to the other half of the ensemble (red-blue, as emcee's moves) was tried
-    at the demo size: with 27 walkers per half, the 14-dimensional covariance is too noisy, and
-    5% of proposals were accepted, against 25% with the Laplace approximation's covariance.
+    The proposal is not fitted to the other half of the ensemble (red-blue, as emcee's moves):
+    at the demo size, with 27 walkers per half, that 14-dimensional covariance is too noisy
+    (5% of proposals accepted, against 25% with the Laplace approximation's covariance).
 
     Args:
         block: flat indices of the coordinates moved.
