@@ -3,7 +3,8 @@
     python benchmarks/handshake_inference.py [--quick]
 
 ``HGPDM()`` is fitted by MAP on the built-in handshakes at 10 fps (24 trials: 4 emotions x
-2 couples x 3 repetitions; quick: couple c1 only, 12 trials). ``bayesmotion.evaluation.evaluate.leave_one_out``
+2 couples x 3 repetitions; quick: couple c1 only, 12 trials).
+``bayesmotion.evaluation.evaluate.leave_one_out``
 then refits it without each trial (warm-started, ``refit_iter`` L-BFGS iterations), infers the
 held-out trial's emotion with ``infer_emotion`` (couple given) and scores it, with the
 affective-feature classifier and a mean-pose nearest neighbour on the same folds. Targets (issue:

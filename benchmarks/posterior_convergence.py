@@ -3,61 +3,26 @@ bulk ESS >= 400 over every sampled coordinate (the demo-size target of the Bayes
 
 The demo's model: ``load_handshakes(fps=10)`` without the 4 held-out trials (20 trials, N = 340
 frames per actor), ``HGPDM().fit(max_iter=1000, seed=0)``; then ``sample_posterior`` with its
-defaults (one ensemble of 2 ndim + 2 walkers, DE moves followed by style rotations, walkers
-started from the Laplace approximation) for ``STEPS`` steps into an emcee HDF5 backend. R-hat
-(rank-normalised, split, arviz) and bulk/tail ESS are computed on the chain's first n steps for
-a series of n, each after the package's own burn-in rule (2 max tau, at most half the chain),
-with the walkers as arviz chains. The backend file lives in ``benchmarks/.cache`` under a hash
-of the fitted parameters and the sampler, so a run stopped by the suite's timeout resumes where
-it stopped.
+defaults (one ensemble of 2 ndim + 2 walkers started from the Laplace approximation; DE moves
+followed by style rotations, then an independence move on the hyperparameters whose proposal
+has one component per idle-factor mode, ``bayesmotion.inference.proposals.idle_factor_modes``)
+for ``steps`` steps into an emcee HDF5 backend. R-hat (rank-normalised, split, arviz) and
+bulk/tail ESS are computed on the chain's first n steps for each n in ``checkpoints``, after
+the package's own burn-in rule (2 max tau, at most half the chain, at least the independence
+move's adaptation), with the walkers as arviz chains.
 
-Recorded runs (2026-11-22), 7,000 steps each: the DE move alone reached max R-hat 1.24 and min
-bulk ESS 163 (max tau 447); DE followed by style rotations (the default, the run in results/)
-reached 1.12 and 298 (max tau 327, still growing; worst coordinates: hyperparameters and the
-two-level couple style), at 0.46 s per step of 54 walkers. Session 16, the factorised sampler
-(gamma in its own ensemble, stepped once every 4 steps, so the bottom layer is evaluated a
-quarter as often): 0.31 s per step with 48 walkers, max R-hat 1.20, min bulk ESS 171 (max tau
-329); 0.34 s per step with 54 walkers, 1.25 and 164 (max tau 422). Cheaper steps, but no more
-effective samples per second than the joint run (0.068-0.080 against 0.093), so it is not the
-default.
+The fit is not bit-reproducible (the layers' factorisations take more OpenBLAS threads when
+cores are idle, ``bayesmotion.gp.blas``), so the fitted model is cached in ``benchmarks/.cache``
+(``posterior_convergence_model_<max_iter>_<version>.npz``) and the chain beside it under a hash
+of the fitted parameters and ``SAMPLER_VERSION``: a run stopped by the suite's timeout, or one
+with ``steps`` raised (checkpoints past it are skipped), resumes from the file.
 
-Session 19 (2026-11-23), the default with the independence step, 2,000 steps at 0.74 s: max
-R-hat 1.112 / 1.074 / 1.067 / 1.078 and min bulk ESS 306 / 453 / 527 / 418 at 400 / 800 /
-1,000 / 2,000 steps (worst: style:couple[1, 0] and style:emotion[0, 0]).
-
-Session 21 (2026-11-25), the same sampler to 4,000 steps at 0.60 s (machine otherwise idle):
-max R-hat 1.058 / 1.082 / 1.090 and min bulk ESS 598 / 415 / 387 at 2,000 / 3,000 / 4,000
-steps, max tau 60 / 100 / 153 and growing. The couple style is bimodal (style:couple[0, 0]:
-main mode near +1.2, the couples apart; a second near 0, both couple vectors at the simplex's
-centre) and walkers cross between the modes slowly: the coordinate's mean drifts 1.17 / 1.07 /
-0.95 over steps 1,000-2,000 / 2,000-3,000 / 3,000-4,000. A longer chain will not meet the target.
-
-Session 22, the independence proposal with one component per idle-factor mode
-(``idle_factor_modes``; second mode at Laplace weight 0.23), a 1,000-step probe with this
-model and these settings (not a run of this file): the second mode held 20-25% of the walkers
-in every 100-step block; max R-hat 1.099 / 1.071 / 1.063 and min bulk ESS 346 / 475 / 522 at
-600 / 800 / 1,000 steps, worst coordinate style:emotion[0, 0] (tau 24 and growing).
-
-Session 23 (2026-11-25), that sampler run here to 4,000 steps (0.82 s per step, two other
-benchmarks sharing the 2 cores): max R-hat 1.119 / 1.056 / 1.031 / 1.023 / **1.016** and min
-bulk ESS 295 / 602 / 1,312 / 2,129 / **2,783** at 400 / 1,000 / 2,000 / 3,000 / 4,000 steps
-(session 21's single t at 4,000: 1.090 and 387), max tau 47; worst coordinates
-style:couple[0, 0] and style:emotion[0, 0]. R-hat now falls about as 1/steps. Running that
-chain on failed: the fit is not bit-reproducible between runs (the layers' factorisations take
-more OpenBLAS threads when the other processes leave cores idle, ``bayesmotion.gp.blas``), so the
-refit got another cache key and started a new chain. The fitted model is now cached beside the
-chain (``posterior_convergence_model_<max_iter>_<version>.npz``) and reused, so a longer run
-(``steps`` raised; the checkpoints past it are skipped) or one stopped by the suite's timeout
-resumes.
-
-Session 24 (2026-11-25), the same sampler to 7,000 steps, on a new fit (an Intel Xeon machine):
-max R-hat 1.054 / 1.032 / 1.020 / 1.012 / 1.012 / **1.010** / **1.009** and min bulk ESS 640 /
-1,112 / 2,175 / 3,705 / 4,591 / **5,487** / **6,147** at 1,000 / 2,000 / ... / 7,000 steps, max tau
-51: the target is met from 6,000 steps on (worst coordinates log_alpha[4] and
-style:emotion[0, 0]). 0.78 s per step over the last 4,758 steps, the test suite sharing the
-cores for 28 of their 62 minutes. The chain ran in three pieces resumed from its file; one was
-stopped when a progress check read the file while emcee wrote it (fixed since:
-``bayesmotion.inference.chainfile``).
+Current result (``results/posterior_convergence.json``, full settings, 54 walkers, 26 dims):
+the target is first met at 6,000 steps (``["checkpoints"][10]``: max R-hat 1.010, min bulk ESS
+5,487; at 4,000 steps, ``["checkpoints"][8]``, R-hat is 1.012) and holds at 7,000
+(``["checkpoints"][11]``: 1.009 and 6,147, max tau 51). Worst coordinates
+(``["worst_coordinate_names"]``): log_alpha[4] and style:emotion[0, 0]. ``["seconds_per_step"]``
+0.78, over the steps sampled after ``["resumed_from_step"]``.
 """
 
 from __future__ import annotations

@@ -1,35 +1,30 @@
 """Effective samples per second: vectorised emcee vs a per-walker Python loop vs NUTS.
 
 Small model: the built-in handshakes with one repetition at 10 fps (8 trials of 17 frames,
-N = 136), MAP-fitted briefly. The sampled density is ``bayesmotion.inference.target``
-(hyperparameters + training style vectors, latents at the MAP).
+N = 136), MAP-fitted briefly; the sampled density is ``bayesmotion.inference.target``
+(hyperparameters + training style vectors, latents at the MAP). The methods (``["methods"]``):
 
-* ``emcee_vectorised``: ``sample_posterior(fitted, method="emcee")`` with its defaults: one
-  ensemble over every coordinate, the jitted ``vmap``-ped log-density (``vectorize=True``),
-  DE, style rotations and (since session 19) an independence step on the hyperparameters;
-* ``emcee_vectorised_de``: the same with ``independence=False`` (DE and the rotations only:
-  the moves of ``emcee_loop``);
-* ``emcee_vectorised_factorised``: ``factorise=True``: gamma in its own ensemble, stepped once
-  every 4 steps, the other coordinates in a second ensemble that never evaluates the bottom
-  layer, each evaluating its block's jitted, vmapped log-density;
-* ``emcee_vectorised_hmc``: ``hmc=True``: the default moves followed by an ensemble-
-  preconditioned HMC step on the hyperparameters and two-level style vectors (fewer steps:
-  each costs about 10x a DE step);
-* ``emcee_loop``: ``emcee_vectorised_de``'s walkers, steps, moves (DE followed by the style
-  rotations), seed and start, but ``vectorize=False`` with the un-vmapped jitted
-  ``Target.logp`` called once per walker from Python; burn-in and thinning copied from the
-  vectorised run;
-* ``nuts``: ``sample_posterior(fitted, method="nuts")`` (numpyro, 2 sequential chains).
+* ``emcee_vectorised``: ``sample_posterior(method="emcee")`` defaults: one ensemble, the jitted
+  ``vmap``-ped log-density, DE, style rotations and an independence step on the hyperparameters;
+* ``emcee_vectorised_de``: the same with ``independence=False`` (DE and the rotations only);
+* ``emcee_vectorised_factorised``: ``factorise=True``: gamma in its own ensemble, stepped every
+  4 steps, the other coordinates in a second ensemble that never evaluates the bottom layer;
+* ``emcee_vectorised_hmc``: ``hmc=True``: the default moves, then an ensemble-preconditioned HMC
+  step on the hyperparameters and two-level style vectors (fewer steps: each costs ~10x a DE step);
+* ``emcee_loop``: ``emcee_vectorised_de``'s walkers, steps, moves, seed, start, burn-in and
+  thinning, but ``vectorize=False``: the un-vmapped jitted ``Target.logp`` once per walker;
+* ``nuts``: ``sample_posterior(method="nuts")`` (numpyro, 2 sequential chains).
 
-ESS: min over coordinates of arviz's bulk ESS (every walker / chain a chain), divided by the
-sampler's wall time (which includes JIT compilation and, for NUTS, the warm-up). The projected
-time to 1,000 effective samples of every coordinate is ``seconds * 1000 / min ESS``.
+ESS per second: min over coordinates of arviz's bulk ESS (each walker / chain a chain) over the
+sampler's wall time (JIT compilation and NUTS warm-up included). For the full built-in model
+(24 trials, N = 816) the script times one ensemble step (joint and factorised), one HMC move and
+one gradient, and projects the time to 1,000 ESS assuming the small model's ESS per step (emcee)
+and per gradient (NUTS) carry over: a rough, optimistic extrapolation, labelled as such.
 
-For the full built-in model (``load_handshakes()``: 24 trials, N = 816) the script measures
-the cost of one ensemble step (joint, and factorised: one upper-block step plus a quarter of a
-gamma-block step) and one gradient, and projects the time to 1,000 ESS assuming the small
-model's ESS per ensemble step (emcee; walkers grow with the dimension) and per gradient (NUTS)
-carry over -- a rough, optimistic extrapolation, labelled as such.
+Current result (``results/sampler_ess.json``): ``["methods"][m]["min_ess_bulk_per_s"]`` is 5.3
+factorised, 2.6 DE only, 2.3 default, 2.0 loop, 1.8 HMC, 0.87 NUTS (max R-hat 1.007; the emcee
+chains 1.06-1.28); the best projection (``["projected_s_to_1000_ess_builtin"]``), factorised,
+is 8,500 s against the 120 s target.
 """
 
 from __future__ import annotations
@@ -178,9 +173,8 @@ def eval_costs(fitted, repeats: int) -> dict:
     target = Target(fitted)
     W = 2 * target.ndim + 2
     up = Target(fitted, block="upper")
-    W_up = W  # the factorised sampler's default walkers, in both blocks (the run of
-    # 2026-11-23 in results/ timed 2 ndim_upper + 2 = 48 at both sizes; the projection uses
-    # their ratio)
+    W_up = W  # the factorised sampler's default: 2 ndim + 2 walkers in both blocks (the
+    # projection uses the ratio of the two sizes' step costs)
     factorised = (step_s(up, W_up)
                   + step_s(Target(fitted, block="bottom"), W_up) / GAMMA_EVERY)
     xs = jnp.asarray(target.x0 + 1e-3 * rng.standard_normal((W, target.ndim)))

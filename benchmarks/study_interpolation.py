@@ -23,7 +23,8 @@ neutral clip to the emotional one, ``s ∈ {0, .25, .5, .75, 1}``, and extrapola
 
 Every output is scored (a) by the probability of the target emotion under the affective-feature
 logistic-regression classifier trained on the real walks of the *other* contents, and by
-``bayesmotion.emotion.infer.infer_emotion`` with the fitted H-GPDM where that exists; (b) by the Ho et
+``bayesmotion.emotion.infer.infer_emotion`` with the fitted H-GPDM where that exists; (b) by the Ho
+et
 al. ranking function (trained on the other contents) as raw strength and normalised so the
 source pair's real neutral clip scores 0 and its real emotional clip 1; (c) by the naturalness
 proxies of :mod:`bayesmotion.evaluation.naturalness` against all real walks at the same frame rate.

@@ -285,7 +285,8 @@ def test_outside_support_is_minus_inf_with_zero_gradient(rng):
 
 def test_gplvm_gradient_is_finite_when_the_variance_underflows(rng):
     X, Y = rng.normal(size=(8, 2)), rng.normal(size=(8, 3))
-    grad = jax.grad(lambda lg: densities.gplvm_loglik(X, Y, jnp.exp(lg)))(jnp.array([-800., 0., 3.]))
+    grad = jax.grad(lambda lg: densities.gplvm_loglik(X, Y, jnp.exp(lg)))(
+        jnp.array([-800., 0., 3.]))
     assert np.all(np.isfinite(np.asarray(grad)))
 
 

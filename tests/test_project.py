@@ -171,7 +171,8 @@ def test_frame_buckets_bound_the_padding():
 
 
 def test_projection_rounds_rescale_and_never_worsen(tiny_model, tiny_data, monkeypatch):
-    """minimize_scaled: rounds of at most ``round_iter`` iterations, each a jitted L-BFGS call in freshly
+    """minimize_scaled: rounds of at most ``round_iter`` iterations, each a jitted L-BFGS call in
+    freshly
     rescaled coordinates, until ``max_iter``; the result never scores worse than its start and
     its fields describe the returned point."""
     from bayesmotion.emotion.projection import _neg_value_and_grad, minimize_scaled

@@ -8,7 +8,8 @@ For a clip with poses Y*_a (per actor), latents X*_a, I* and style vectors s* (o
       + sum_{t>o} log N(I*_t | mu_I(I*_{t-1..t-o}, s*), (sigma_I^2 + 1/alpha_noise) I)
       + sum_{t<=o} log N(I*_t | 0, v0 I)                                          dynamics
 
-with every mu / sigma^2 the GP predictive of the fitted layer (bayesmotion.model.predict). Arrays are
+with every mu / sigma^2 the GP predictive of the fitted layer (bayesmotion.model.predict). Arrays
+are
 padded to a frame bucket; ``mask`` marks real frames (padding contributes exactly 0), so clips of
 many lengths share one compiled function.
 """
@@ -44,7 +45,8 @@ def _normal(x, mean, var):
 def styles_from(params: dict, fixed: dict, factors, vectors: dict) -> list[jnp.ndarray]:
     """Per factor (K_f,) style vector: a free one's coordinates ``params["style:<f>"]`` (on the
     simplex) times its level vectors, else the fixed vector."""
-    return [style_to_simplex(params[STYLE_PREFIX + f][None])[0] @ vectors[f] if (STYLE_PREFIX + f) in params
+    return [style_to_simplex(params[STYLE_PREFIX + f][None])[0] @ vectors[f]
+            if (STYLE_PREFIX + f) in params
             else jnp.asarray(fixed[f]) for f in factors]
 
 
@@ -159,7 +161,8 @@ def style_expansion(P: Predictor, params: dict, Ys, mask, fixed: dict, free: dic
                    P.dyn, dyn_factors, free, fixed, B - o, P.level_vectors)
     base = kernels.dynamics_diag(list(lags), unit(dyn_factors, B - o), P.alpha)
     dyn = _Expanded(I[o:], G, H, base, noise["I"], m[o:])
-    return StyleExpansion(_bottom_term(P, X, Ys, m) + restart_log_prior(I[:o], init_var), inter, dyn,
+    return StyleExpansion(_bottom_term(P, X, Ys, m) + restart_log_prior(I[:o], init_var),
+                          inter, dyn,
                           {f: P.level_vectors[f] for f in free})
 
 

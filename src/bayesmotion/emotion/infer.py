@@ -6,7 +6,8 @@
    (L-BFGS) of the clip's predictive log-density (bayesmotion.emotion.density) with the model
    fixed. By default (``emotion_starts="vertices"``) one projection per emotion level with the
    emotion held at it, from the latents of the nearest frames of that level's training trials;
-   the level is chosen by its Laplace evidence (bayesmotion.emotion.projection), then its latents and the
+   the level is chosen by its Laplace evidence (bayesmotion.emotion.projection), then its latents
+   and the
    free emotion are refined together. With "nearest", one start from the latents of the nearest
    training frames and the style of most of them; "levels" adds one start per emotion level
    and keeps the best optimum. When the couple is inferred: one start per couple level, the
@@ -21,7 +22,8 @@
    once per clip (bayesmotion.emotion.density.style_expansion), so each walker step costs
    O(T P D) instead of O(T N^2).
 
-Arrays are padded to frame buckets (four sizes per doubling, :func:`bayesmotion.shapes.padded_length`) so
+Arrays are padded to frame buckets (four sizes per doubling,
+:func:`bayesmotion.shapes.padded_length`) so
 clips of many lengths share compiled functions.
 """
 
@@ -340,7 +342,8 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
 
 def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc):
     """The emotion level with the largest posterior probability under the Laplace evidence of
-    each level (bayesmotion.emotion.projection.project_levels) and the prior probability that the level
+    each level (bayesmotion.emotion.projection.project_levels) and the prior probability that the
+    level
     is the largest coordinate; its projection, with the free emotion set just inside its
     vertex (the style sampler starts from the styles' mode at these latents)."""
     out = project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc)

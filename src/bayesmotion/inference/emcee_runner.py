@@ -120,8 +120,9 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         info["modes"] = [{"weight": m["weight"], "logp": m["logp"],
                           "log_evidence": m["log_evidence"], "searched_from": m["searched_from"],
                           "x": m["x"].tolist()} for m in modes]
-    return posterior_from_chain(target, be.get_chain(), be.get_log_prob(), be.accepted / max(be.iteration, 1),
-                   burn, thin, info, min_burn=n_adapt)
+    return posterior_from_chain(target, be.get_chain(), be.get_log_prob(),
+                                be.accepted / max(be.iteration, 1), burn, thin, info,
+                                min_burn=n_adapt)
 
 
 ADAPT_ATTR = "bayesmotion_adapt_steps"
@@ -220,10 +221,10 @@ def run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend
     held = np.arange(n_steps) // gamma_every
     chain = np.empty((n_steps, W, target.ndim))
     chain[..., iu], chain[..., ib] = c_up, c_bot[held]
-    return posterior_from_chain(target, chain, l_up + l_bot[held], s_up.acceptance_fraction, burn, thin,
-                   {"seconds": seconds, "factorised": True, "gamma_every": gamma_every,
-                    "bottom_acceptance": np.asarray(s_bot.acceptance_fraction),
-                    **move_stats(moves_up)})
+    info = {"seconds": seconds, "factorised": True, "gamma_every": gamma_every,
+            "bottom_acceptance": np.asarray(s_bot.acceptance_fraction), **move_stats(moves_up)}
+    return posterior_from_chain(target, chain, l_up + l_bot[held], s_up.acceptance_fraction,
+                                burn, thin, info)
 
 
 def _check_resumed_density(be, log_prob, backend) -> None:

@@ -13,7 +13,8 @@ Held at their MAP values: the latents X and I. The target density, in unconstrai
                              + sum_k log |det d s_k / d u_k|                      (stick-breaking)
                              + const,
 
-i.e. :class:`bayesmotion.model.logpost.LogPosterior` with the latents fixed. emcee receives it jitted
+i.e. :class:`bayesmotion.model.logpost.LogPosterior` with the latents fixed. emcee receives it
+jitted
 and ``vmap``-ped over walkers (``vectorize=True``); NUTS (numpyro) gets the same potential.
 emcee's default moves: differential evolution, exact rotations along the style vectors'
 symmetry orbits (:mod:`bayesmotion.inference.moves`), and an independence Metropolis step on the
@@ -124,7 +125,8 @@ class Posterior:
 
     def generate(self, emotion="neutral", couple=None, n_frames=100, n_samples=0, start=None,
                  seed=0, n_draws: int = 16, **styles):
-        """Posterior-predictive generation; see :func:`bayesmotion.inference.predictive.generate_posterior`."""
+        """Posterior-predictive generation; see
+        :func:`bayesmotion.inference.predictive.generate_posterior`."""
         return generate_posterior(self, emotion, couple, n_frames, n_samples, start, seed,
                                   n_draws, **styles)
 

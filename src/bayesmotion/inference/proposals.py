@@ -123,7 +123,8 @@ def default_moves(target, hmc: bool = False, proposal=None):
     then, with ``proposal = (block, mean, cov[, weights])`` (a mixture when ``mean`` is 2-d),
     an independence step on that block
     (:class:`bayesmotion.inference.moves.IndependenceMove`); then
-    (``hmc``) ensemble-preconditioned HMC steps (:class:`bayesmotion.inference.moves.EnsembleHMC`): one
+    (``hmc``) ensemble-preconditioned HMC steps (:class:`bayesmotion.inference.moves.EnsembleHMC`):
+    one
     on the coordinates the rotations do not move, one on those they do.
 
     Not DESnookerMove: emcee 3.1.6's snooker move does not leave the target invariant (its

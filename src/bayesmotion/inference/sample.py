@@ -51,10 +51,8 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             slow-mixing one (beta, alpha, styles) never evaluates the bottom layer, and updates
             gamma once every ``gamma_every`` steps; output step t pairs the two chains' walkers
             at steps t and t // gamma_every. ``False`` (default): one ensemble over every
-            coordinate. At the demo size the factorised steps cost 0.31-0.34 s against 0.46 s,
-            but two 7,000-step factorised chains mixed worse per step than the joint one (max
-            R-hat 1.20 and 1.25, min bulk ESS 171 and 164, against 1.12 and 298), so the joint
-            sampler stays the default.
+            coordinate. Both samplers' cost and effective samples per second are measured side
+            by side in ``benchmarks/results/sampler_ess.json``.
         gamma_every: steps of the upper chain per step of the gamma chain.
         hmc: add, after the default moves, two ensemble-preconditioned HMC steps
             (:class:`bayesmotion.inference.moves.EnsembleHMC`): one on the coordinates the style
@@ -65,7 +63,8 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             gradients per walker and block). Off by default: no long run has shown it to
             mix faster per second than the default moves.
         independence: add, after DE and the rotations, an independence Metropolis step
-            (:class:`bayesmotion.inference.moves.IndependenceMove`) on the coordinates the rotations do not
+            (:class:`bayesmotion.inference.moves.IndependenceMove`) on the coordinates the
+            rotations do not
             move, plus the rotated ones the likelihood pins (Laplace sd < 0.1): a multivariate t (20
             degrees of freedom) proposal from the Laplace approximation at the conditional MAP for
             the first min(150, n_steps // 4) steps, then from the sample mean and covariance of that
@@ -74,7 +73,8 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             file resumed with ``backend`` switches where its first run did. One more log-density per
             walker and step (at the demo size 0.74 s per step against 0.46 s). ``None`` (default):
             on for the joint emcee sampler with the default moves, off otherwise; ``True`` with
-            ``method="nuts"``, user ``moves`` or ``factorise`` raises. Its measured effect at the demo
+            ``method="nuts"``, user ``moves`` or ``factorise`` raises. Its measured effect at the
+            demo
             size is in ``benchmarks/results/posterior_convergence.json``. Where a
             two-level style factor has a second local mode (its vectors near the simplex's
             centre, the factor idle; :func:`idle_factor_modes` searches for one per factor, at
@@ -100,7 +100,8 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
     if independence and (method != "emcee" or moves is not None or factorise):
         raise BayesmotionError("independence=True adds steps to the joint emcee sampler's "
                                "default moves; it does not apply with method='nuts', your own "
-                               "moves or factorise=True (add bayesmotion.inference.moves.IndependenceMove "
+                               "moves or factorise=True (add "
+                               "bayesmotion.inference.moves.IndependenceMove "
                                "to your moves instead)")
     if independence is None:
         independence = method == "emcee" and moves is None and not factorise

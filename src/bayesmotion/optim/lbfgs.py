@@ -1,7 +1,8 @@
 """L-BFGS in pure JAX: the whole minimisation is one ``lax.while_loop``, so a jitted caller pays
 one dispatch per run instead of one host round trip per evaluation.
 
-Used by the projection of observed clips (bayesmotion.emotion.projection), where the density is cheap (0.7
+Used by the projection of observed clips (bayesmotion.emotion.projection), where the density is
+cheap (0.7
 ms per value and gradient for a 20-frame handshake) and scipy's L-BFGS-B spent as long again in
 dispatch and on the host. The algorithm is the textbook one (Nocedal & Wright 2006, Alg. 7.4 and
 7.5): the two-loop recursion over the last ``memory`` curvature pairs with the initial scaling

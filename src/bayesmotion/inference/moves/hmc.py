@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+
 class EnsembleHMC(emcee.moves.Move):
     """Hamiltonian Monte Carlo on a block of coordinates, preconditioned by the ensemble.
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import emcee
 import numpy as np
 
+
 class IndependenceMove(emcee.moves.MHMove):
     """Independence Metropolis on a block of coordinates, with a fixed multivariate-t proposal
     or a fixed mixture of them.

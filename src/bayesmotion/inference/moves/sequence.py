@@ -5,6 +5,7 @@ from __future__ import annotations
 import emcee
 import numpy as np
 
+
 class Sequence(emcee.moves.Move):
     """Applies ``moves`` one after the other at every step; a walker counts as accepted when
     any of them moved it. Each move leaves the target invariant, so their composition does."""
