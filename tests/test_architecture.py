@@ -177,3 +177,14 @@ def test_every_package_has_an_init():
     missing = sorted(str(d.relative_to(PKG)) for d in PKG.rglob("*")
                      if d.is_dir() and any(d.glob("*.py")) and not (d / "__init__.py").exists())
     assert not missing, f"packages without __init__.py: {missing}"
+
+
+def test_long_modules_say_they_are_one_concept():
+    """A module over ~500 lines usually holds two concepts; one that does not says so first."""
+    long = []
+    for name, path in all_modules().items():
+        text = path.read_text()
+        doc = ast.get_docstring(ast.parse(text)) or ""
+        if text.count("\n") > 550 and "One concept:" not in doc:
+            long.append(f"{name} ({text.count(chr(10))} lines)")
+    assert not long, f"split these, or name their one concept in the docstring: {long}"

@@ -14,7 +14,7 @@ from bayesmotion.datasets.handshakes import WINDOW, hand_distance, hand_position
 
 EMOTIONS = ("neutral", "happy", "angry", "sad")
 K_C = round(WINDOW[0] * 20)  # contact frame at 20 fps
-BUILTIN = resources.files("bayesmotion.data") / "builtin"
+BUILTIN = resources.files("bayesmotion.datasets") / "builtin"
 SHA256 = {"18_01.bvh": "08a783b18cb63314cefe5ea1d953377d0f02de718de4148067a8febd756bdabf",
           "19_01.bvh": "24770906878edfc86d17417360fa9e22edbf2aa1bc926f19dde1848f0c130304"}
 

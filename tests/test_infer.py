@@ -176,11 +176,10 @@ def _check_expansion(m, trial, given, seed=3):
         expanded_log_density,
         expanded_log_likelihood,
         style_expansion,
-        style_log_prior,
     )
     from bayesmotion.emotion.infer import _style_setup
     from bayesmotion.emotion.projection import init_latents
-    from bayesmotion.model.params import style_to_simplex
+    from bayesmotion.model.params import style_log_prior, style_to_simplex
 
     Ys = clip_poses(m, trial)
     T, B = Ys[0].shape[0], 32
@@ -394,7 +393,7 @@ def test_calibrated_power_covers_overconfident_gaussian_posteriors():
     and at eta the q-ellipsoids (covariance Sigma / eta) hold a fraction q of the truths."""
     from scipy.stats import chi2
 
-    from bayesmotion.evaluation.evaluate import calibrate_likelihood_power
+    from bayesmotion.evaluation.calibration import calibrate_likelihood_power
 
     rng = np.random.default_rng(3)
     dim, n = 3, 20_000
@@ -448,7 +447,7 @@ def test_tempered_hpd_levels_match_direct_sampling_of_a_dirichlet():
     Dirichlet(1 + eta (a - 1)): the importance-sampled level of a point equals the mass of that
     Dirichlet above the point's density, estimated here by sampling it directly."""
 
-    from bayesmotion.evaluation.evaluate import tempered_hpd_levels, uniform_simplex_points
+    from bayesmotion.evaluation.calibration import tempered_hpd_levels, uniform_simplex_points
 
     rng = np.random.default_rng(3)
     a = np.array([9.0, 4.0, 2.0, 6.0])
@@ -467,7 +466,7 @@ def test_tempering_proposal_resolves_posteriors_the_uniform_points_cannot():
     ladder proposal around the posterior mean gives the level that direct sampling gives, and
     still agrees with the uniform points on a wide posterior."""
 
-    from bayesmotion.evaluation.evaluate import (
+    from bayesmotion.evaluation.calibration import (
         tempered_hpd_levels,
         tempering_proposal,
         uniform_simplex_points,
@@ -501,7 +500,7 @@ def test_tempered_hpd_levels_refuse_posteriors_sharper_than_the_points():
     shape): at large powers the tempered posterior is far narrower than the uniform points'
     spacing and the importance-sampled level would read 0 (covered); it is NaN instead, so no
     calibration can pick such a power. Wide posteriors keep their finite levels."""
-    from bayesmotion.evaluation.evaluate import (
+    from bayesmotion.evaluation.calibration import (
         calibrate_hpd_power,
         tempered_hpd_levels,
         uniform_simplex_points,
@@ -527,7 +526,7 @@ def test_hpd_power_calibration_recovers_an_overconfidence_factor():
     """Clip likelihoods c times too sharp (truths drawn from Dirichlet(a_j), likelihood
     c sum (a_j - 1) log s): the calibrated power is about 1/c, and the regions it gives hold
     about q of new truths; a likelihood that no power can make cover is refused."""
-    from bayesmotion.evaluation.evaluate import (
+    from bayesmotion.evaluation.calibration import (
         calibrate_hpd_power,
         tempered_hpd_levels,
         uniform_simplex_points,
@@ -573,7 +572,8 @@ def test_hpd_power_calibration_recovers_an_overconfidence_factor():
 def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
     """Each held-out trial's eta comes from the other trials' plain posteriors only."""
     from bayesmotion.evaluation import evaluate
-    from bayesmotion.evaluation.evaluate import calibrate_likelihood_power, leave_one_out
+    from bayesmotion.evaluation.calibration import calibrate_likelihood_power
+    from bayesmotion.evaluation.evaluate import leave_one_out
 
     calls = []
 

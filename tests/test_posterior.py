@@ -271,7 +271,7 @@ def test_an_impossible_burn_is_refused_before_sampling(tiny_model, monkeypatch):
     def no_target(*a, **k):
         raise AssertionError("the sampler was set up before burn was checked")
 
-    monkeypatch.setattr("bayesmotion.inference.target.Target", no_target)
+    monkeypatch.setattr("bayesmotion.inference.sample.Target", no_target)
     with pytest.raises(bm.BayesmotionError, match="burn must be in"):
         bm.sample_posterior(tiny_model, n_steps=100, burn=100, progress=False)
 
@@ -353,7 +353,7 @@ def test_independence_flag_and_burn_are_checked_before_sampling(tiny_model, monk
     def no_target(*a, **k):
         raise AssertionError("the sampler was set up before the arguments were checked")
 
-    monkeypatch.setattr("bayesmotion.inference.target.Target", no_target)
+    monkeypatch.setattr("bayesmotion.inference.sample.Target", no_target)
     for bad in ({"method": "nuts"}, {"moves": emcee.moves.DEMove()}, {"factorise": True}):
         with pytest.raises(bm.BayesmotionError, match="independence=True adds steps"):
             bm.sample_posterior(tiny_model, n_steps=100, progress=False, independence=True,

@@ -1,5 +1,8 @@
 """The pose representation Y that the GP model sees, and its exact inverse.
 
+One concept: the joint-angle codec (:class:`PoseCodec`, with its fitted rig steps and the
+private helpers only it uses), kept in one module although it is longer than the others.
+
 ``PoseCodec`` turns a :class:`Motion` into a matrix ``Y: (T, D)`` and back:
 
 * **Rotations: unwrapped Euler angles.** The BVH channels are Euler angles; unwrapping them in

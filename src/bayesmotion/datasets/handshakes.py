@@ -52,7 +52,7 @@ NOISE_DEG, NOISE_HZ, NOISE_TERMS = 0.8, (0.3, 1.2), 3  # smooth angle noise: ran
 
 @lru_cache(maxsize=1)
 def _cmu_motions() -> tuple[Motion, Motion]:
-    root = resources.files("bayesmotion.data") / "builtin"
+    root = resources.files("bayesmotion.datasets") / "builtin"
     out = []
     for stem in ("18_01", "19_01"):
         text = (root / f"{stem}.bvh").read_text(encoding="utf-8")

@@ -175,7 +175,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             (generalised Bayes). 1, the default, is the plain posterior. Below 1 widens it to
             allow for model misspecification: with many frames the plain posterior is often
             narrower than the distance from its mean to the true label. Choose eta from labelled
-            data with :func:`bayesmotion.evaluation.evaluate.calibrate_hpd_power`.
+            data with :func:`bayesmotion.evaluation.calibration.calibrate_hpd_power`.
         emotion_starts: "vertices" (the default: one projection per level with the emotion
             held at that level; the level of largest Laplace evidence of the latents is
             chosen (bayesmotion.emotion.projection) and its latents and free emotion are refined

@@ -127,7 +127,7 @@ class EmotionPosterior:
         minus at ``coords``, >= 0. For a well-specified model, twice it is about chi-square with
         K - 1 degrees of freedom at a draw; it does not depend on the likelihood power the
         samples were drawn with (the statistic of
-        :func:`bayesmotion.evaluation.evaluate.calibrate_likelihood_power` for highest-density
+        :func:`bayesmotion.evaluation.calibration.calibrate_likelihood_power` for highest-density
         regions)."""
         W = self._simplex_points(coords)
         if W.shape[0] != 1:
@@ -140,7 +140,7 @@ class EmotionPosterior:
         covariance (the metric of :meth:`region_contains`). For a Gaussian posterior it is
         chi-square with K - 1 degrees of freedom at a draw; tempering the likelihood by eta
         scales it by about eta
-        (:func:`bayesmotion.evaluation.evaluate.calibrate_likelihood_power`)."""
+        (:func:`bayesmotion.evaluation.calibration.calibrate_likelihood_power`)."""
         return float(self._mahalanobis2()(self._coords(coords)))
 
     def _coords(self, coords, on_simplex: bool = False):

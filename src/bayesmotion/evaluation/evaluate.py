@@ -26,7 +26,14 @@ from bayesmotion.baselines.strength import StrengthClassifier, keyframe_features
 from bayesmotion.data.motion import MotionDataset
 from bayesmotion.emotion.infer import infer_emotion
 from bayesmotion.errors import BayesmotionError
-from bayesmotion.model.params import STYLE_PREFIX, log_dirichlet
+from bayesmotion.evaluation.calibration import (
+    ETA_GRID,
+    calibrate_likelihood_power,
+    hpd_power_from_levels,
+    tempered_hpd_levels,
+    tempering_proposal,
+)
+from bayesmotion.model.params import STYLE_PREFIX
 from bayesmotion.model.spec import HGPDM
 
 
@@ -39,190 +46,6 @@ def _fold_init(full, keep: list[int]) -> dict:
     init["X"] = np.asarray(full.params["X"])[:, rows]
     init["I"] = np.asarray(full.params["I"])[rows]
     return init
-
-
-def calibrate_likelihood_power(result_or_distances, q: float = 0.9, dim: int | None = None,
-                               region: str = "hpd") -> float:
-    """The likelihood power eta that makes ``q`` credible regions cover the truth in a fraction
-    ``q`` of labelled clips (a one-step version of Syring & Martin 2019's calibration of
-    generalised posteriors).
-
-    For a well-specified model, d2 = twice the clip's untempered log-likelihood drop from its
-    best point to the true label (:meth:`EmotionPosterior.loglik_drop`; ``region="hpd"``, for
-    highest-density regions), or the truth's squared Mahalanobis distance under the plain
-    posterior (:meth:`EmotionPosterior.mahalanobis2`; ``region="ellipsoid"``), is about
-    chi-square with K - 1 degrees of freedom. In the posterior tempered by eta both scale by eta
-    (a flat prior; for the ellipsoid, a Gaussian shape), so eta = chi2_q(K - 1) / quantile_q(d2)
-    puts a fraction ``q`` of the truths inside.
-    eta < 1 widens overconfident posteriors, eta > 1 narrows underconfident ones. These are
-    approximations on a bounded simplex: check the coverage that results
-    (``leave_one_out(..., calibrate=True)`` does, on held-out folds).
-
-    Args:
-        result_or_distances: a :func:`leave_one_out` result (its trials' ``truth_loglik_drop``,
-            which does not depend on the run's own likelihood power, or ``truth_mahalanobis2``,
-            which for a run tempered by eta0 is relative to eta0) or an array of d2 (Mahalanobis
-            distances under the plain posterior).
-        q: the credible level to calibrate.
-        dim: K - 1 (taken from the result's levels when a result is given).
-        region: "hpd" or "ellipsoid": which statistic to read from a result.
-    """
-    from scipy.stats import chi2
-
-    if region not in ("hpd", "ellipsoid"):
-        raise BayesmotionError(f"region must be 'hpd' or 'ellipsoid', got {region!r}")
-    eta0 = 1.0
-    if isinstance(result_or_distances, dict):
-        res = result_or_distances
-        if region == "hpd":
-            drops = [t.get("truth_loglik_drop") for t in res["trials"]]
-            if any(d is None for d in drops):
-                raise BayesmotionError("this result has no log-likelihood drops (pooled or "
-                                       "couple-inferred posteriors): use region='ellipsoid'")
-            d2 = 2 * np.asarray(drops, dtype=np.float64)
-        else:
-            d2 = [t["truth_mahalanobis2"] for t in res["trials"]]
-            eta0 = float(res.get("likelihood_power", 1.0))
-        dim = len(res["levels"]) - 1 if dim is None else dim
-    else:
-        d2 = result_or_distances
-    d2 = np.asarray(d2, dtype=np.float64).ravel()
-    if dim is None or dim < 1:
-        raise BayesmotionError("calibrate_likelihood_power needs dim = K - 1 >= 1")
-    if not 0 < q < 1:
-        raise BayesmotionError(f"q must lie in (0, 1), got {q}")
-    if d2.size < 2 or not np.all(np.isfinite(d2)) or np.any(d2 < 0):
-        raise BayesmotionError("calibration needs at least two finite, non-negative distances")
-    scale = float(np.quantile(d2, q))
-    if scale <= 1e-12:
-        raise BayesmotionError(f"the {q:.0%} quantile of d2 is {scale:.2g}: the truths sit at "
-                               f"the likelihood's best point, so no power can be calibrated")
-    return float(eta0 * chi2.ppf(q, dim) / scale)
-
-
-def uniform_simplex_points(K: int, n: int = 8192, seed: int = 0) -> np.ndarray:
-    """(n, K) points drawn uniformly on the simplex (Dirichlet(1)): a proposal for
-    :func:`tempered_hpd_levels` (``log_proposal_points`` 0) when the tempered posteriors are
-    wide; :func:`tempering_proposal` adds points for sharp ones."""
-    return np.random.default_rng(seed).dirichlet(np.ones(K), size=n)
-
-
-# total concentrations of the Dirichlet ladder around a clip's posterior mean: from nearly flat
-# to sharper than the plain posteriors of the built-in handshakes (interval widths ~5e-4)
-_LADDER = (10.0, 30.0, 100.0, 300.0, 1e3, 3e3, 1e4, 3e4, 1e5, 3e5)
-
-
-def tempering_proposal(center, n_uniform: int = 8192, n_per_rung: int = 2048,
-                       ladder=_LADDER, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Points on the simplex and their proposal log-density, for :func:`tempered_hpd_levels`.
-
-    A deterministic mixture (each point's density is the mixture's, Veach's balance heuristic):
-    ``n_uniform`` uniform points, plus ``n_per_rung`` from Dirichlet(1 + c * center) for each
-    total concentration c of ``ladder``. Uniform points alone cannot resolve a posterior tempered
-    by a power at which it is still much narrower than the simplex (the importance weights' ESS
-    collapses, and :func:`tempered_hpd_levels` answers NaN); the ladder puts points at every
-    scale between the prior and the plain posterior around its mean.
-
-    Returns:
-        (M, K) points and (M,) log proposal density at them.
-    """
-    c = np.clip(np.asarray(center, dtype=np.float64), 1e-12, None)
-    c = c / c.sum()
-    K = c.size
-    rng = np.random.default_rng([seed, 1])  # the ladder's stream, apart from the flat points'
-    alphas = [np.ones(K)] + [1.0 + a * c for a in ladder]
-    counts = [n_uniform] + [n_per_rung] * len(ladder)
-    W = np.concatenate([uniform_simplex_points(K, n_uniform, seed)]
-                       + [rng.dirichlet(a, size=n_per_rung) for a in alphas[1:]])
-    W = np.clip(W, 1e-300, None)
-    W = W / W.sum(1, keepdims=True)
-    parts = np.stack([np.asarray(log_dirichlet(W, a)) + np.log(n / len(W))
-                      for a, n in zip(alphas, counts, strict=True)])
-    return W, np.logaddexp.reduce(parts, axis=0)
-
-
-_ETA_GRID = np.logspace(-8, 2, 401)
-
-
-def tempered_hpd_levels(loglik_points, loglik_truth, etas, log_prior_points=0.0,
-                        log_prior_truth=0.0, min_ess: float = 100.0,
-                        log_proposal_points=0.0) -> np.ndarray:
-    """The smallest highest-density level that holds the truth, for each clip and power.
-
-    For clip j with log-likelihood l_j over the emotion simplex and prior p, the posterior
-    tempered by eta has density p(s) exp(eta l_j(s)) / Z; the truth t lies in its ``q``
-    highest-density region iff h_j(eta) = P(p(S) e^{eta l_j(S)} >= p(t) e^{eta l_j(t)}) <= q.
-    h is integrated by self-normalised importance sampling from points on the simplex, exact as
-    the points grow: uniform points (:func:`uniform_simplex_points`, ``log_proposal_points`` 0)
-    or any proposal whose log-density is given (:func:`tempering_proposal`). Where the estimate
-    is unreliable -- the importance weights' effective sample size below ``min_ess`` -- the
-    level is NaN (unknown, never counted as covering): a posterior sharper than the points'
-    spacing puts its weight on one or two points, and the estimate then says 0 (truth covered)
-    whenever the truth beats them. On the built-in handshakes that made a power of 100 look
-    calibrated while its regions covered no truth.
-
-    Args:
-        loglik_points: (n_clips, M) l_j at the M points. loglik_truth: (n_clips,) l_j(t_j).
-        etas: (E,) powers. log_prior_points: (M,) or (n_clips, M) log p at the points (0: flat).
-        log_prior_truth: (n_clips,) log p(t_j).
-        log_proposal_points: (M,) or (n_clips, M) log-density of the proposal that drew the
-            points (0: uniform, up to a constant).
-    Returns:
-        (E, n_clips) h_j(eta), NaN where the importance sampling is unreliable.
-    """
-    L = np.asarray(loglik_points, dtype=np.float64)
-    lt = np.asarray(loglik_truth, dtype=np.float64)
-    lp = np.broadcast_to(np.asarray(log_prior_points, dtype=np.float64), L.shape)
-    lq = np.broadcast_to(np.asarray(log_proposal_points, dtype=np.float64), L.shape)
-    lpt = np.broadcast_to(np.asarray(log_prior_truth, dtype=np.float64), lt.shape)
-    out = np.empty((len(etas), L.shape[0]))
-    for e, eta in enumerate(np.asarray(etas, dtype=np.float64)):
-        logd = eta * L + lp  # tempered log density at the points
-        logw = logd - lq
-        w = np.exp(logw - logw.max(1, keepdims=True))
-        h = np.sum(w * (logd >= (eta * lt + lpt)[:, None]), 1) / w.sum(1)
-        ess = w.sum(1) ** 2 / np.sum(w**2, 1)
-        out[e] = np.where(ess >= min_ess, h, np.nan)
-    return out
-
-
-def calibrate_hpd_power(loglik_points, loglik_truth, q: float = 0.9, log_prior_points=0.0,
-                        log_prior_truth=0.0, etas=None, log_proposal_points=0.0) -> float:
-    """The largest likelihood power whose tempered ``q`` highest-density regions hold the truth
-    for at least a fraction ``q`` of the clips, their levels computed by
-    :func:`tempered_hpd_levels` (no chi-square approximation: the simplex's faces, where the
-    regions of nearly flat posteriors are cut off, are accounted for). The largest such power
-    is the most informative posterior with that coverage. ``log_proposal_points``: as in
-    :func:`tempered_hpd_levels` (0 for uniform points).
-
-    Raises:
-        BayesmotionError: no power on the grid (default 1e-8..100, log-spaced) reaches the
-            coverage -- even the prior's regions leave too many truths out.
-    """
-    if not 0 < q < 1:
-        raise BayesmotionError(f"q must lie in (0, 1), got {q}")
-    L = np.atleast_2d(np.asarray(loglik_points, dtype=np.float64))
-    if L.shape[0] < 2 or not np.all(np.isfinite(L)) or not np.all(np.isfinite(loglik_truth)):
-        raise BayesmotionError("calibration needs at least two clips with finite "
-                               "log-likelihoods")
-    etas = _ETA_GRID if etas is None else np.sort(np.asarray(etas, dtype=np.float64))
-    return hpd_power_from_levels(tempered_hpd_levels(L, loglik_truth, etas, log_prior_points,
-                                                     log_prior_truth,
-                                                     log_proposal_points=log_proposal_points),
-                                 q, etas)
-
-
-def hpd_power_from_levels(levels, q: float = 0.9, etas=None) -> float:
-    """:func:`calibrate_hpd_power` from precomputed levels (E, n_clips) on the grid ``etas``
-    (cross-fitting drops columns instead of recomputing them)."""
-    etas = _ETA_GRID if etas is None else np.asarray(etas, dtype=np.float64)
-    cover = np.mean(np.asarray(levels) <= q, axis=1)  # NaN (unreliable) never covers
-    ok = etas[cover >= q]
-    if ok.size == 0:
-        raise BayesmotionError(f"no likelihood power in [{etas[0]:.2g}, {etas[-1]:.2g}] makes "
-                               f"{q:.0%} regions hold {q:.0%} of the truths (best "
-                               f"{cover.max():.0%})")
-    return float(ok.max())
 
 
 def confusion_matrix(true, pred, levels) -> np.ndarray:
@@ -244,7 +67,7 @@ def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
         L, lt, lpt, lp, lq = (np.array([run[4][k] for run in runs])
                               for k in ("loglik_points", "loglik_truth", "log_prior_truth",
                                         "log_prior_points", "log_proposal_points"))
-        H = tempered_hpd_levels(L, lt, _ETA_GRID, lp, lpt, log_proposal_points=lq)
+        H = tempered_hpd_levels(L, lt, ETA_GRID, lp, lpt, log_proposal_points=lq)
         # with a flat prior the levels only grow with eta (tempering moves mass onto the
         # likelihood's superlevel sets): the flattest posterior covers the most
         reachable = float(np.max(np.mean(H <= q, axis=1)))
