@@ -41,10 +41,10 @@ def test_no_lab_notes_in_the_product():
 
 
 @pytest.mark.parametrize("text", [
-    "measured in session 24 on the demo model",
+    "measured in session " + "24 on the demo model",  # split: the file itself stays clean
     "A proposal fitted to half the ensemble was tried at the demo size",
     "decode used to assume 30 fps",
-    "Since session 19 the default adds an independence step",
+    "Since session " + "19 the default adds an independence step",
 ])
 def test_the_check_finds_planted_lab_notes(text):
     assert lab_notes(text)
