@@ -589,7 +589,8 @@ def test_leave_one_out_calibration_is_cross_fitted(tiny_data, tiny_model):
                             calibrate=True)
     finally:
         evaluate.tempered_hpd_levels = levels
-    real = evaluate.calibrate_hpd_power
+    from bayesmotion.evaluation.calibration import calibrate_hpd_power as real
+
     assert res["calibrated"]["statistic"].startswith("highest-density levels")
     d2 = np.array([2 * t["truth_loglik_drop"] for t in res["trials"]])
     assert np.all(d2 >= 0)
