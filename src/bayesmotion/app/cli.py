@@ -13,20 +13,32 @@ DATA is builtin:handshakes, a folder of BVH files with labels.csv (file, emotion
 Bandai Namco dataset root.
 
 Exit codes: 0 success; 2 bad input (missing file, wrong format, unknown emotion, incompatible
-model); 1 unexpected error (rerun with --debug for the traceback); 130 interrupted.
+model, a number out of range, an output path that cannot be written, a request larger than the
+memory available), with one line on stderr and a hint; 1 unexpected error (a bug: rerun with
+--debug for the traceback); 130 interrupted.
+
+Every argument is checked before any work: numbers (types, ranges), input paths (they exist),
+output paths (writable: nothing is fitted for an --out that cannot be written) and the memory a
+command will need (bayesmotion.validate; --no-memory-check turns that check off).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import io
 import json
 import sys
+import warnings
+from importlib import resources
 from pathlib import Path
 
+from bayesmotion import validate
 from bayesmotion.app.demo import run_demo
 from bayesmotion.data.files import atomic_write_text
 from bayesmotion.datasets.loaders import load_data
 from bayesmotion.emotion.infer import infer_emotion
+from bayesmotion.emotion.ood import OutOfDistributionWarning
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.evaluation.evaluate import format_confusion, leave_one_out
 from bayesmotion.inference.diagnostics import convergence
@@ -46,15 +58,25 @@ EXAMPLES = {
 }
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, whose usage errors follow the CLI's contract: one line and a hint, exit 2."""
+
+    def error(self, message):
+        self.exit(2, f"error: {' '.join(message.split())}\nhint: see '{self.prog} --help'\n")
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="bayesmotion", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = _Parser(prog="bayesmotion", description=__doc__,
+                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = p.add_subparsers(dest="command", required=True)
 
     def add(name, help):
-        return sub.add_parser(name, help=help, description=f"{help}\n\nexample: {EXAMPLES[name]}",
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+        c = sub.add_parser(name, help=help, description=f"{help}\n\nexample: {EXAMPLES[name]}",
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        c.add_argument("--no-memory-check", action="store_true",
+                       help="run even when the estimated memory exceeds what is available")
+        return c
 
     d = add("demo", "the main job on the built-in emotional handshakes")
     d.add_argument("--out", required=True, help="output folder")
@@ -140,8 +162,71 @@ def _emotion(value: str):
     return value
 
 
+def _utf8_text(path: Path) -> str:
+    """The text of ``path``, refused unless it is UTF-8 (the loaders read text as UTF-8)."""
+    data = path.read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise BayesmotionError(f"{path}: must be UTF-8 text, but byte 0x{data[e.start]:02x} at "
+                               f"offset {e.start} is not; save it as UTF-8 (e.g. 'iconv -f "
+                               f"latin1 -t utf-8')") from None
+
+
+def _data_files(spec: str) -> list:
+    """The BVH files a data specification reads (checked: a labels.csv is UTF-8 and every file
+    it lists exists); the loader checks everything else."""
+    if spec.startswith("builtin:"):
+        if spec != "builtin:handshakes":
+            return []
+        root = resources.files("bayesmotion.datasets") / "builtin"
+        return [root / "18_01.bvh", root / "19_01.bvh"]
+    root = Path(spec)
+    labels = root / "labels.csv"
+    if labels.is_file():
+        rows = list(csv.DictReader(io.StringIO(_utf8_text(labels), newline="")))
+        files = []
+        for i, row in enumerate(rows):
+            name = row.get("file")
+            if not name:
+                continue
+            if not (root / name).is_file():
+                raise BayesmotionError(f"{labels}: line {i + 2} names {name!r}, which is not a "
+                                       f"file in {root}; fix the file column")
+            files.append(root / name)
+        return files
+    if root.is_dir():
+        return sorted(root.glob("dataset-1_*.bvh")) or sorted(root.glob("data/dataset-1_*.bvh"))
+    return []
+
+
+def _check_data(spec: str, fps: float | None) -> None:
+    """Before loading: the data's own files, and ``fps`` no higher than their frame rate
+    (resampling up adds frames and memory, no information)."""
+    heads = []
+    for f in _data_files(spec):
+        with resources.as_file(f) as path:
+            heads.append(validate.bvh_header(path))
+    rates = [1.0 / h[1] for h in heads if h is not None]
+    if fps is not None and rates and fps > max(rates) * (1 + 1e-6):
+        raise BayesmotionError(f"--fps {fps:g} is above the data's own frame rate "
+                               f"({max(rates):.4g} fps): resampling up adds frames, not "
+                               f"information; pass --fps {max(rates):.4g} or less")
+
+
 def _cmd_fit(a):
+    if a.fps is not None:
+        validate.real(a.fps, "--fps", above=0.0, at_most=validate.MAX_FPS)
+    validate.integer(a.max_iter, "--max-iter", low=1)
+    validate.integer(a.latent_dim, "--latent-dim", low=1)
+    validate.integer(a.interaction_dim, "--interaction-dim", low=1)
+    validate.output_file(a.out, "--out")
+    _check_data(a.data, a.fps)
     ds = load_data(a.data, a.fps)
+    N = sum(t.n_frames for t in ds)
+    validate.check_memory(
+        validate.fit_memory(N, ds.n_actors + 2, ds.n_actors * a.latent_dim + a.interaction_dim),
+        f"fitting {N} frames")
     m = HGPDM(latent_dim=a.latent_dim, interaction_dim=a.interaction_dim,
               rest_frames=a.rest_frames, canonical_side=a.canonical_side,
               pose_space=a.pose_space).fit(
@@ -153,10 +238,20 @@ def _cmd_fit(a):
 
 
 def _cmd_sample(a):
+    validate.integer(a.steps, "--steps", low=1)
+    if a.walkers is not None:
+        validate.integer(a.walkers, "--walkers", low=1)
+    validate.output_file(a.out, "--out")
+    if a.backend is not None:
+        validate.output_file(a.backend, "--backend")
+        if Path(a.backend).resolve() == Path(a.out).resolve():
+            raise BayesmotionError(f"--backend and --out are the same file ({a.out}); the "
+                                   f"posterior would overwrite the chain: give two paths")
     m = load(a.model)
     post = sample_posterior(m, n_walkers=a.walkers, n_steps=a.steps, backend=a.backend,
                             factorise=a.factorise, hmc=a.hmc,
-                            independence=False if a.no_independence else None)
+                            independence=False if a.no_independence else None,
+                            check_memory=not a.no_memory_check)
     post.to_netcdf(a.out)
     c = convergence(post)
     print(f"wrote {a.out}: max R-hat {c['max_rhat']:.3f}, min bulk ESS {c['min_ess_bulk']:.0f}, "
@@ -164,10 +259,17 @@ def _cmd_sample(a):
 
 
 def _cmd_generate(a):
+    validate.integer(a.frames, "--frames", low=1)
+    validate.integer(a.samples, "--samples", low=0)
+    validate.seed(a.seed, "--seed")
+    emotion = _emotion(a.emotion)
+    out = validate.output_dir(a.out, "--out")
     m = load(a.model)
-    r = m.generate(emotion=_emotion(a.emotion), couple=a.couple, n_frames=a.frames,
+    if a.frames <= m.spec.order:
+        raise BayesmotionError(f"--frames must exceed the model's dynamics order "
+                               f"({m.spec.order}), got {a.frames}")
+    r = m.generate(emotion=emotion, couple=a.couple, n_frames=a.frames,
                    n_samples=a.samples, seed=a.seed)
-    out = Path(a.out)
     tag = a.emotion.replace(",", "_")
     paths = r.write_bvh(out, prefix=tag)
     for k in range(a.samples):
@@ -182,13 +284,20 @@ def _cmd_generate(a):
 
 
 def _cmd_infer(a):
-    m = load(a.model)
+    validate.seed(a.seed, "--seed")
     for c in a.clips:
-        if not Path(c).is_file():
-            raise BayesmotionError(f"{c}: no such file")
-    ep = infer_emotion(m, a.clips if len(a.clips) > 1 else a.clips[0], couple=a.couple,
-                       seed=a.seed, likelihood_power=a.likelihood_power,
-                       emotion_starts=a.emotion_starts)
+        validate.input_file(c, "clip")
+    m = load(a.model)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", OutOfDistributionWarning)
+        ep = infer_emotion(m, a.clips if len(a.clips) > 1 else a.clips[0], couple=a.couple,
+                           seed=a.seed, likelihood_power=a.likelihood_power,
+                           emotion_starts=a.emotion_starts)
+    for w in caught:  # the flag is part of the answer: one line on stderr, and in the JSON
+        if issubclass(w.category, OutOfDistributionWarning):
+            print(f"warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if a.json:
         lo, hi = ep.interval(0.9)
         print(json.dumps({"label": ep.label, "levels": list(ep.levels),
@@ -197,14 +306,53 @@ def _cmd_infer(a):
                           "n_frames": ep.info["n_frames"],
                           "likelihood_power": ep.info["likelihood_power"],
                           "emotion_starts": ep.info["emotion_starts"],
-                          "map_objective": ep.info["map_objective"]}))
+                          "map_objective": ep.info["map_objective"],
+                          "out_of_distribution": ep.out_of_distribution,
+                          "ood_score": ep.info["ood"]["score"]}))
     else:
         print(ep)
 
 
+def _check_fits(m, ds, model_path, data) -> None:
+    """Refuse data the model was not fitted on (evaluate warm-starts every fold's refit from
+    the model's latents, trial by trial): actors, skeletons, style levels, trials, frames."""
+    fix = f"evaluate needs a model fitted on this data ('bayesmotion fit {data} --out ...')"
+    if ds.n_actors != m.n_actors:
+        raise BayesmotionError(f"{model_path} has {m.n_actors} actor(s) per trial, {data} has "
+                               f"{ds.n_actors}; {fix}")
+    for a in range(m.n_actors):
+        want, got = list(m.skeleton(a).names), list(ds.trials[0].actors[a].skeleton.names)
+        if want != got:
+            diff = next((f"{w!r} vs {g!r}" for w, g in zip(want, got, strict=False) if w != g),
+                        f"{len(want)} vs {len(got)} joints")
+            raise BayesmotionError(f"{model_path}'s actor {a} skeleton differs from {data}'s "
+                                   f"({diff}); {fix}")
+    for f in dict.fromkeys(("emotion", *m.spec.factors)):
+        if tuple(ds.levels.get(f, ())) != tuple(m.levels.get(f, ())):
+            raise BayesmotionError(f"{model_path} has {f} levels {list(m.levels.get(f, ()))}, "
+                                   f"{data} has {list(ds.levels.get(f, ()))}; {fix}")
+    fitted = [(t.name, t.n_frames) for t in m.trials]
+    given = [(t.name, t.n_frames) for t in ds]
+    if fitted != given:
+        if len(fitted) != len(given):
+            why = f"was fitted on {len(fitted)} trials, the data hold {len(given)}"
+        else:
+            i = next(i for i, (f, g) in enumerate(zip(fitted, given, strict=True)) if f != g)
+            why = (f"trial {i} is {fitted[i][0]!r} of {fitted[i][1]} frames in the model, "
+                   f"{given[i][0]!r} of {given[i][1]} frames at {m.fps:g} fps in the data")
+        raise BayesmotionError(f"{model_path} {why}; {fix}")
+
+
 def _cmd_evaluate(a):
+    validate.integer(a.refit_iter, "--refit-iter", low=1)
+    if a.json is not None:
+        validate.output_file(a.json, "--json")
     m = load(a.model)
+    _check_data(a.data, None)
     ds = load_data(a.data, m.fps)
+    _check_fits(m, ds, a.model, a.data)
+    N = sum(t.n_frames for t in ds)
+    validate.check_memory(validate.fit_memory(N, m.n_actors + 2), f"refitting {N} frames")
     res = leave_one_out(ds, m, refit_iter=a.refit_iter, calibrate=a.calibrate,
                         infer_kwargs={"emotion_starts": a.emotion_starts})
     print(format_confusion(res))
@@ -228,6 +376,8 @@ def _cmd_evaluate(a):
 
 
 def _cmd_demo(a):
+    validate.seed(a.seed, "--seed")
+    validate.output_dir(a.out, "--out")
     summary = run_demo(Path(a.out), quick=a.quick, seed=a.seed)
     print(f"demo finished in {summary['seconds_total']:.0f} s; open {Path(a.out) / 'report.html'}")
 
@@ -239,11 +389,33 @@ HINTS = {
 }
 
 
+def _one_line(text) -> str:
+    return " ".join(str(text).split())
+
+
+def _input_error(e: Exception) -> str | None:
+    """The one-line message of an exception that reports bad input or a machine's limit rather
+    than a bug, else None."""
+    if isinstance(e, UnicodeDecodeError):
+        return (f"a text input is not UTF-8 ({e.reason}: byte 0x{e.object[e.start]:02x} at "
+                f"offset {e.start}); save the file as UTF-8")
+    if isinstance(e, MemoryError):
+        return ("ran out of memory; ask for less (fewer frames, samples, steps or walkers, a "
+                "lower --fps)")
+    if isinstance(e, OSError) and e.filename is not None:
+        return f"{e.filename}: {e.strerror or e}"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as e:  # --help (0), or a usage error already printed as one line (2)
+        return e.code if isinstance(e.code, int) else 2
 
     try:
-        globals()[f"_cmd_{args.command}"](args)
+        with validate.memory_checks(not args.no_memory_check):
+            globals()[f"_cmd_{args.command}"](args)
         return 0
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
@@ -252,11 +424,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         hint = HINTS.get(type(e).__name__, f"see 'bayesmotion {args.command} --help'")
-        print(f"error: {e}\nhint: {hint}", file=sys.stderr)
+        print(f"error: {_one_line(e)}\nhint: {hint}", file=sys.stderr)
         return 2
     except Exception as e:  # unexpected: one line unless --debug
         if args.debug:
             raise
-        print(f"error: unexpected {type(e).__name__}: {e}\nhint: rerun with --debug and report "
-              f"the traceback", file=sys.stderr)
+        message = _input_error(e)
+        if message is not None:
+            print(f"error: {_one_line(message)}\nhint: see 'bayesmotion {args.command} --help'",
+                  file=sys.stderr)
+            return 2
+        print(f"error: unexpected {type(e).__name__}: {_one_line(e)}\nhint: rerun with --debug "
+              f"and report the traceback", file=sys.stderr)
         return 1

@@ -17,11 +17,16 @@ import numpy as np
 from bayesmotion.app.report import table, write_report
 from bayesmotion.data.files import atomic_write_text
 from bayesmotion.datasets import load_handshakes
-from bayesmotion.emotion.infer import infer_emotion
-from bayesmotion.evaluation.evaluate import confusion_matrix, interval_coverage, online_sharpening
+from bayesmotion.evaluation.evaluate import (
+    confusion_matrix,
+    infer_flagged,
+    interval_coverage,
+    online_sharpening,
+)
 from bayesmotion.inference.diagnostics import convergence
 from bayesmotion.inference.sample import sample_posterior
 from bayesmotion.model.spec import HGPDM
+from bayesmotion.validate import output_dir
 from bayesmotion.viz.animate import animate
 from bayesmotion.viz.plots import save_figure
 
@@ -65,7 +70,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
 
 
     cfg = SETTINGS["quick" if quick else "full"]
-    out = Path(out)
+    out = output_dir(out, "out")  # before any work: a folder that exists or can be created
     (out / "bvh").mkdir(parents=True, exist_ok=True)
     t_all = time.perf_counter()
     summary: dict = {"settings": {**cfg, "quick": quick, "seed": seed}}
@@ -137,7 +142,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
         c = np.zeros(len(levels))
         c[levels.index("neutral")], c[levels.index("happy")] = 1 - s, s
         r = model.generate(emotion=c, couple="c1", n_frames=T)
-        ep = infer_emotion(model, r.Y, couple="c1", n_steps=cfg["infer_steps"], seed=seed,
+        ep = infer_flagged(model, r.Y, couple="c1", n_steps=cfg["infer_steps"], seed=seed,
                            latent_uncertainty=False)
         lo, hi = ep.interval(0.9)
         interp.append({"s": s, "inferred_happy": float(ep.mean[levels.index("happy")]),
@@ -162,7 +167,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     # 5. inference on held-out trials
     rows, true, pred, cover = [], [], [], []
     for trial in held:
-        ep = infer_emotion(model, trial, couple=trial.labels["couple"],
+        ep = infer_flagged(model, trial, couple=trial.labels["couple"],
                            n_steps=cfg["infer_steps"], seed=seed)
         lo, hi = ep.interval(0.9)
         k = levels.index(trial.labels["emotion"])

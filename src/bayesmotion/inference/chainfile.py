@@ -1,4 +1,4 @@
-"""The chain's HDF5 file, safe to read while a run writes it.
+"""The chain's HDF5 file: safe to read while a run writes it, and checked before it is trusted.
 
 emcee's :class:`~emcee.backends.HDFBackend` reopens the file for every step it saves. HDF5 locks
 a file while any process holds it open, so a reader watching the chain (a notebook calling
@@ -10,19 +10,60 @@ losing every saved step.
 :class:`ChainFile` waits for such a lock instead (a reader like the one above holds it for
 milliseconds to a second), and tells a locked or unreadable file from an empty one. Every open
 of the chain's file in the package waits this way.
+
+A damaged file is refused, never reset or shrunk, so no saved step is lost:
+
+* every open of a :class:`ChainFile` checks its group's layout (:func:`check_layout`): the
+  attributes ``nwalkers``, ``ndim``, ``iteration``, ``has_blobs`` present and integers, the
+  datasets ``chain`` (L, W, D), ``log_prob`` (L, W) and ``accepted`` (W,) present with the
+  shapes the attributes give, ``0 <= iteration <= L``, and emcee's random state stored once a
+  step is (emcee's own backend takes a negative stored iteration for an empty run and resets
+  the file);
+* :func:`check_chain_file` (run before a run resumes) and every read of the chain or the
+  log-densities also refuse a non-finite value (NaN, inf) in the stored steps, naming the first
+  such step;
+* growing the datasets for more steps never shrinks them (emcee resizes them to
+  ``iteration + new steps``, which cuts rows off a file a killed longer run had grown);
+* every h5py error becomes a :class:`~bayesmotion.errors.BayesmotionError` naming the file.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 
 import emcee
+import numpy as np
 
 from bayesmotion.errors import BayesmotionError
 
 # how long a run waits for another process's lock on its file before stopping with an error
 LOCK_WAIT_S = 120.0
+#: the attribute where the independence move's adaptation length is stored with its chain
+ADAPT_ATTR = "bayesmotion_adapt_steps"
+#: the groups bayesmotion's runs write: the joint chain (or the factorised upper one) and gamma's
+GROUPS = ("mcmc", "gamma")
+#: steps read at once when checking stored values
+CHECK_BLOCK = 2048
+# what h5py raises on a damaged file: OSError (unreadable objects, truncation), KeyError (a
+# missing link), ValueError / TypeError / RuntimeError (bad selections, messages, datatypes)
+_H5_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError)
+_AFTER = ("the file is left as it is: pass another backend path (or repair it with h5py from "
+          "a copy)")
+
+
+@contextlib.contextmanager
+def h5_errors(path, doing: str = "read"):
+    """Turn an h5py error inside the block into a BayesmotionError naming ``path``."""
+    try:
+        yield
+    except BayesmotionError:
+        raise
+    except _H5_ERRORS as e:
+        why = " ".join(f"{type(e).__name__}: {e}".split())
+        raise BayesmotionError(f"{path}: cannot {doing} this HDF5 chain file ({why}); "
+                               f"{_AFTER}") from e
 
 
 def open_h5(path, mode: str = "r", wait_s: float | None = None):
@@ -56,27 +97,244 @@ def _waiting(open_file, path, wait_s: float | None = None):
             time.sleep(delay)
             delay = min(2 * delay, 0.5)
         except OSError as e:
-            raise BayesmotionError(f"{path}: cannot open as an HDF5 chain file ({e}); pass "
+            why = " ".join(str(e).split())
+            raise BayesmotionError(f"{path}: cannot open as an HDF5 chain file ({why}); pass "
                                    f"another backend path") from e
 
 
+# --------------------------------------------------------------------------- checks
+def _attr_int(attrs, key: str, where: str, low: int | None = None, kinds: str = "iu") -> int:
+    if key not in attrs:
+        raise BayesmotionError(f"{where} lacks its attribute {key!r}; {_AFTER}")
+    value = np.asarray(attrs[key])
+    if value.shape != () or value.dtype.kind not in kinds:
+        raise BayesmotionError(f"{where}: attribute {key!r} is {value.tolist()!r}, expected an "
+                               f"integer; {_AFTER}")
+    value = int(value)
+    if low is not None and value < low:
+        raise BayesmotionError(f"{where}: attribute {key!r} is {value}, expected at least {low}; "
+                               f"{_AFTER}")
+    return value
+
+
+def _dataset(g, key: str, where: str, kinds: str):
+    import h5py
+
+    obj = g.get(key)
+    if not isinstance(obj, h5py.Dataset):
+        raise BayesmotionError(f"{where} lacks its dataset {key!r}; {_AFTER}")
+    if obj.dtype.kind not in kinds:
+        raise BayesmotionError(f"{where}: dataset {key!r} holds {obj.dtype}, expected numbers; "
+                               f"{_AFTER}")
+    return obj
+
+
+def check_layout(f, name: str, path) -> tuple[int, int, int]:
+    """``(nwalkers, ndim, iteration)`` of group ``name`` of the open file ``f``, after checking
+    that its attributes and datasets agree (module docstring); a BayesmotionError naming
+    ``path`` says what does not."""
+    import h5py
+
+    where = f"{path}: chain group {name!r}"
+    g = f.get(name)
+    if not isinstance(g, h5py.Group):
+        raise BayesmotionError(f"{where} is not a group (not a file emcee's HDF5 backend "
+                               f"wrote); {_AFTER}")
+    attrs = g.attrs
+    W = _attr_int(attrs, "nwalkers", where, low=1)
+    D = _attr_int(attrs, "ndim", where, low=1)
+    it = _attr_int(attrs, "iteration", where)
+    blobs = _attr_int(attrs, "has_blobs", where, kinds="iub")
+    chain = _dataset(g, "chain", where, "f")
+    log_prob = _dataset(g, "log_prob", where, "f")
+    accepted = _dataset(g, "accepted", where, "fiu")
+    L = chain.shape[0] if chain.ndim == 3 else -1
+    if chain.ndim != 3 or chain.shape[1:] != (W, D):
+        raise BayesmotionError(f"{where}: dataset 'chain' has shape {chain.shape}, its "
+                               f"attributes say (steps, {W}, {D}); {_AFTER}")
+    if log_prob.shape != (L, W):
+        raise BayesmotionError(f"{where}: dataset 'log_prob' has shape {log_prob.shape}, "
+                               f"expected {(L, W)} to match 'chain'; {_AFTER}")
+    if accepted.shape != (W,):
+        raise BayesmotionError(f"{where}: dataset 'accepted' has shape {accepted.shape}, "
+                               f"expected {(W,)}; {_AFTER}")
+    if it < 0:
+        raise BayesmotionError(f"{where}: its stored iteration is {it}, negative (emcee would "
+                               f"take the file for an empty one and reset it, losing its {L} "
+                               f"stored rows); {_AFTER}")
+    if it > L:
+        raise BayesmotionError(f"{where}: its stored iteration {it} is past the end of its "
+                               f"chain, which holds {L} steps; {_AFTER}")
+    if blobs and not (isinstance(g.get("blobs"), h5py.Dataset) and g["blobs"].shape[:1] == (L,)):
+        raise BayesmotionError(f"{where}: attribute 'has_blobs' is set but no dataset 'blobs' "
+                               f"of {L} steps is stored; {_AFTER}")
+    missing = [f"random_state_{i}" for i in range(5) if f"random_state_{i}" not in attrs]
+    if it > 0 and missing:
+        raise BayesmotionError(f"{where} lacks emcee's random state ({', '.join(missing)}), "
+                               f"without which a resumed run cannot continue the chain; "
+                               f"{_AFTER}")
+    if ADAPT_ATTR in attrs:
+        _attr_int(attrs, ADAPT_ATTR, where, low=0)
+    return W, D, it
+
+
+def _first_bad_step(values: np.ndarray) -> int | None:
+    """Index along axis 0 of the first row holding a non-finite value, or None."""
+    ok = np.isfinite(values).reshape(len(values), -1).all(axis=1)
+    return None if ok.all() else int(np.argmin(ok))
+
+
+def _check_accepted(accepted, iteration: int, where: str) -> np.ndarray:
+    acc = np.asarray(accepted, dtype=np.float64)
+    if not (np.all(np.isfinite(acc)) and np.all(acc >= 0) and np.all(acc <= iteration)):
+        raise BayesmotionError(f"{where}: dataset 'accepted' holds counts outside [0, "
+                               f"{iteration}] (the stored steps); {_AFTER}")
+    return accepted
+
+
+def check_steps(g, name: str, path, iteration: int) -> None:
+    """Refuse a non-finite value in the ``iteration`` stored steps of group ``g``'s chain and
+    log-densities, an acceptance count outside ``[0, iteration]`` and a random state NumPy
+    cannot restore (read in blocks of :data:`CHECK_BLOCK` steps)."""
+    where = f"{path}: chain group {name!r}"
+    for key in ("chain", "log_prob"):
+        ds = g[key]
+        for start in range(0, iteration, CHECK_BLOCK):
+            bad = _first_bad_step(ds[start:min(start + CHECK_BLOCK, iteration)])
+            if bad is not None:
+                raise BayesmotionError(f"{where}: stored step {start + bad} (of {iteration}) "
+                                       f"holds a non-finite value (NaN or inf) in {key!r}, "
+                                       f"which no run writes; the file is damaged and cannot "
+                                       f"be resumed or read: {_AFTER}")
+    _check_accepted(g["accepted"][...], iteration, where)
+    if iteration > 0:
+        state = tuple(g.attrs[f"random_state_{i}"] for i in range(5))
+        try:
+            np.random.RandomState().set_state(state)
+        except (ValueError, TypeError, IndexError) as e:
+            raise BayesmotionError(f"{where}: emcee's stored random state cannot be restored "
+                                   f"({' '.join(str(e).split())}); {_AFTER}") from None
+
+
+def check_chain_file(path, names=GROUPS) -> dict[str, int]:
+    """Check every chain group of ``names`` that the file at ``path`` holds, layout
+    (:func:`check_layout`) and stored values (:func:`check_steps`), before a run resumes it;
+    returns group -> stored steps. Reads only; an absent file holds no group."""
+    if not os.path.exists(str(path)):
+        return {}
+    out = {}
+    with open_h5(path, "r") as f, h5_errors(path):
+        for name in names:
+            if name in f:
+                W, D, it = check_layout(f, name, path)
+                check_steps(f[name], name, path, it)
+                out[name] = it
+    return out
+
+
+# --------------------------------------------------------------------------- the backend
 class ChainFile(emcee.backends.HDFBackend):
     """emcee's HDF5 backend, whose every open waits for another process's lock
-    (:func:`open_h5`).
+    (:func:`open_h5`) and checks the group's layout (:func:`check_layout`), whose reads refuse
+    non-finite stored steps, and whose datasets never shrink.
 
     Same arguments and file layout as :class:`emcee.backends.HDFBackend` (a file written by
     either reads with the other).
     """
 
     def open(self, mode="r"):
-        return _waiting(lambda: super(ChainFile, self).open(mode), self.filename)
+        if self.read_only and mode != "r":
+            raise RuntimeError("The backend has been loaded in read-only mode. Set "
+                               "`read_only = False` to make changes.")
+        with h5_errors(self.filename, "open"):
+            f = _waiting(lambda: super(ChainFile, self).open(mode), self.filename)
+        try:
+            with h5_errors(self.filename):
+                if self.name in f:
+                    check_layout(f, self.name, self.filename)
+        except BaseException:
+            f.close()
+            raise
+        return f
 
     @property
     def initialized(self) -> bool:
         """Whether the file holds this backend's group. Unlike emcee's, a file that is locked
-        (waited for) or unreadable (an error) is not taken for an empty one, which the caller
-        would then reset."""
+        (waited for), unreadable or damaged (an error) is not taken for an empty one, which the
+        caller would then reset."""
         if not os.path.exists(self.filename):
             return False
         with self.open() as f:
             return self.name in f
+
+    def check(self) -> int:
+        """Check the group's layout and stored values (:func:`check_steps`); returns the
+        number of stored steps (0 for a file without the group)."""
+        if not self.initialized:
+            return 0
+        with self.open() as f, h5_errors(self.filename):
+            it = int(f[self.name].attrs["iteration"])
+            check_steps(f[self.name], self.name, self.filename, it)
+        return it
+
+    def get_value(self, name, flat=False, thin=1, discard=0):
+        """emcee's ``get_value``, refusing a non-finite stored chain or log-density value (the
+        message names its step)."""
+        with h5_errors(self.filename):
+            v = super().get_value(name, False, thin, discard)
+        if name in ("chain", "log_prob") and v is not None:
+            bad = _first_bad_step(v)
+            if bad is not None:
+                step = discard + thin - 1 + bad * thin
+                raise BayesmotionError(f"{self.filename}: chain group {self.name!r}: stored "
+                                       f"step {step} holds a non-finite value (NaN or inf) in "
+                                       f"{name!r}, which no run writes; the file is damaged: "
+                                       f"{_AFTER}")
+        if flat and v is not None:
+            v = v.reshape(v.shape[0] * v.shape[1], *v.shape[2:])
+        return v
+
+    def grow(self, ngrow, blobs):
+        """Room for ``ngrow`` more steps, never shrinking the datasets: a killed run leaves
+        them sized for all its planned steps, and emcee would resize them to
+        ``iteration + ngrow``."""
+        with self.open() as f, h5_errors(self.filename):
+            g = f[self.name]
+            have = g["chain"].shape[0] - int(g.attrs["iteration"])
+        with h5_errors(self.filename, "write"):
+            super().grow(max(int(ngrow), have), blobs)
+
+    def save_step(self, state, accepted):
+        with h5_errors(self.filename, "write"):
+            super().save_step(state, accepted)
+
+    def reset(self, nwalkers, ndim):
+        with h5_errors(self.filename, "write"):
+            super().reset(nwalkers, ndim)
+
+    @property
+    def shape(self):
+        with h5_errors(self.filename):
+            return super().shape
+
+    @property
+    def iteration(self):
+        with h5_errors(self.filename):
+            return super().iteration
+
+    @property
+    def accepted(self):
+        """Accepted proposals per walker, refused outside ``[0, iteration]``."""
+        with self.open() as f, h5_errors(self.filename):
+            g = f[self.name]
+            return _check_accepted(g["accepted"][...], int(g.attrs["iteration"]),
+                                   f"{self.filename}: chain group {self.name!r}")
+
+    @property
+    def random_state(self):
+        with h5_errors(self.filename):
+            return super().random_state
+
+    def has_blobs(self):
+        with h5_errors(self.filename):
+            return super().has_blobs()

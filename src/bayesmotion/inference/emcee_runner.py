@@ -9,7 +9,13 @@ import time
 import numpy as np
 
 from bayesmotion.errors import BayesmotionError
-from bayesmotion.inference.chainfile import ChainFile, open_h5
+from bayesmotion.inference.chainfile import (
+    ADAPT_ATTR,
+    ChainFile,
+    check_chain_file,
+    h5_errors,
+    open_h5,
+)
 from bayesmotion.inference.posterior import posterior_from_chain
 from bayesmotion.inference.proposals import (
     adapt_steps,
@@ -33,7 +39,9 @@ def _n_walkers(n_walkers, ndim) -> int:
 
 def _open_backend(backend, name, W, ndim, log_prob):
     """(emcee HDF5 backend or None, steps it already holds); a resumed file must hold a run of
-    this shape and of this posterior."""
+    this shape and of this posterior. The caller has checked the file
+    (:func:`~bayesmotion.inference.chainfile.check_chain_file`): a damaged one is refused before
+    any group of it is reset."""
     if backend is None:
         return None, 0
     be = ChainFile(str(backend), name=name)
@@ -69,6 +77,8 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
     def log_prob(xs):
         return in_halves(target.logp_batch, xs, W)
 
+    if backend is not None:
+        check_chain_file(backend)
     be, done = _open_backend(backend, "mcmc", W, target.ndim, log_prob)
     be = emcee.backends.Backend() if be is None else be  # shared by the phases
     cov, n_adapt = None, 0
@@ -125,14 +135,11 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
                                 min_burn=n_adapt)
 
 
-ADAPT_ATTR = "bayesmotion_adapt_steps"
-
-
 def _adapt_record(backend, done: int, n_adapt: int | None) -> int:
     """The adaptation length a backend file's run uses, stored with its chain (so a run resumed
     with another ``n_steps`` switches proposals where the first did); ``None``: this run uses no
     independence move. A resumed file must have been written with the same choice."""
-    with open_h5(backend, "r") as f:
+    with open_h5(backend, "r") as f, h5_errors(backend):
         attrs = f["mcmc"].attrs
         stored = int(attrs[ADAPT_ATTR]) if ADAPT_ATTR in attrs else None
     if done and (stored is None) != (n_adapt is None):
@@ -145,7 +152,7 @@ def _adapt_record(backend, done: int, n_adapt: int | None) -> int:
         return 0
     if done:
         return stored
-    with open_h5(backend, "a") as f:
+    with open_h5(backend, "a") as f, h5_errors(backend, "write"):
         f["mcmc"].attrs[ADAPT_ATTR] = n_adapt
     return n_adapt
 
@@ -153,7 +160,8 @@ def _adapt_record(backend, done: int, n_adapt: int | None) -> int:
 def planned_adapt(backend, n_steps: int) -> int:
     """The adaptation length a run will use: a resumed file's, else this run's."""
     if backend is not None and os.path.exists(str(backend)):
-        with open_h5(backend, "r") as f:  # waits for a reader's lock; names a foreign file
+        # waits for a reader's lock; names a foreign or damaged file
+        with open_h5(backend, "r") as f, h5_errors(backend):
             attrs = f["mcmc"].attrs if "mcmc" in f else {}
             if ADAPT_ATTR in attrs and int(attrs.get("iteration", 0)) > 0:
                 return int(attrs[ADAPT_ATTR])
@@ -188,6 +196,8 @@ def run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend
     def lp_bot(xs):
         return in_halves(bot.logp_batch, xs, W)
 
+    if backend is not None:  # both groups, before either is reset
+        check_chain_file(backend)
     be_up, done_up = _open_backend(backend, "mcmc", W, up.ndim, lp_up)
     be_bot, done_bot = _open_backend(backend, "gamma", W, bot.ndim, lp_bot)
     n_steps = max(n_steps, done_up)  # a file holding more steps returns them all (as joint)

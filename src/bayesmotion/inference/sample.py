@@ -1,6 +1,8 @@
 from __future__ import annotations
 
+from bayesmotion import validate
 from bayesmotion.errors import BayesmotionError
+from bayesmotion.inference.chainfile import check_chain_file
 from bayesmotion.inference.emcee_runner import planned_adapt, run_emcee, run_factorised
 from bayesmotion.inference.nuts import run_nuts
 from bayesmotion.inference.posterior import Posterior
@@ -13,7 +15,8 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
                      backend=None, progress: bool = True, method: str = "emcee",
                      n_chains: int = 2, init: str = "laplace", ball: float = 1e-3,
                      moves=None, factorise: bool = False, gamma_every: int = 4,
-                     hmc: bool = False, independence: bool | None = None) -> Posterior:
+                     hmc: bool = False, independence: bool | None = None,
+                     check_memory: bool = True) -> Posterior:
     """Sample the posterior over hyperparameters and training style vectors.
 
     Args:
@@ -82,11 +85,22 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             mixture with one t per mode (weights from their Laplace evidence, each at least
             0.05; in the second phase each mode's moments come from the adaptation's states
             nearest it), so a walker jumps between the modes in one accepted step.
+        check_memory: refuse a run whose estimated memory
+            (:func:`bayesmotion.validate.sample_memory`: the chain plus the log-posterior's
+            kernel matrices) exceeds the memory available; ``False`` skips the check.
+
+    Every argument is checked before any work (numbers, and a ``backend`` file's layout and
+    stored values: :func:`bayesmotion.inference.chainfile.check_chain_file`), so a bad one
+    fails in milliseconds with a BayesmotionError, and a damaged chain file is left untouched.
 
     Returns:
         a Posterior. A ``ChainTooShortWarning`` is issued when the chain is shorter than 50
         autocorrelation times.
     """
+    if method not in ("emcee", "nuts"):
+        raise BayesmotionError(f"method must be 'emcee' or 'nuts', got {method!r}")
+    _check_numbers(n_walkers, n_steps, burn, thin, seed, n_chains, ball, gamma_every)
+    held = {} if backend is None else check_chain_file(backend)
     if burn is not None and (burn < 0 or (method == "emcee" and burn >= n_steps)):
         # emcee discards burn of its n_steps; NUTS warms up for burn steps before n_steps draws
         raise BayesmotionError(f"burn must be in [0, n_steps = {n_steps}) for emcee and >= 0 "
@@ -108,15 +122,18 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
     if independence and method == "emcee":
         n_adapt = planned_adapt(backend, n_steps)
         if n_steps <= n_adapt:
+            stored = (f"the run stored in {backend}" if held.get("mcmc", 0) > 0
+                      else "the independence move")
             raise BayesmotionError(f"n_steps ({n_steps}) must exceed the {n_adapt} adaptation "
-                                   f"steps of the run stored in {backend}")
+                                   f"steps of {stored}; ask for more steps, or pass "
+                                   f"independence=False (CLI: --no-independence)")
         if burn is not None and burn < n_adapt:
             raise BayesmotionError(f"burn ({burn}) must cover the independence move's {n_adapt} "
                                    f"adaptation steps (as NUTS's warm-up); pass burn >= "
                                    f"{n_adapt}, or independence=False")
-    if int(gamma_every) != gamma_every or gamma_every < 1:
-        raise BayesmotionError(f"gamma_every must be a positive integer, got {gamma_every!r}")
     target = Target(fitted)
+    if check_memory:
+        _check_sample_memory(target, method, n_walkers, n_chains, n_steps, burn)
     centre, cdiag = target.conditional_map(progress=False)
     if method == "emcee" and factorise:
         post = run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend,
@@ -124,10 +141,37 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
     elif method == "emcee":
         post = run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend,
                           progress, init, ball, moves, hmc, independence)
-    elif method == "nuts":
+    else:
         post = run_nuts(target, centre, n_steps, burn, thin, seed, progress, n_chains, init,
                          ball)
-    else:
-        raise BayesmotionError(f"method must be 'emcee' or 'nuts', got {method!r}")
     post.info["conditional_map"] = {k: cdiag[k] for k in ("objective", "iterations", "converged")}
     return post
+
+
+def _check_numbers(n_walkers, n_steps, burn, thin, seed, n_chains, ball, gamma_every) -> None:
+    """Types and ranges of :func:`sample_posterior`'s numbers (before any work)."""
+    if n_walkers is not None:
+        validate.integer(n_walkers, "n_walkers", low=1)
+    validate.integer(n_steps, "n_steps", low=1)
+    if burn is not None:
+        validate.integer(burn, "burn", low=0)
+    if thin is not None:
+        validate.integer(thin, "thin", low=1)
+    validate.seed(seed)
+    validate.integer(n_chains, "n_chains", low=1)
+    validate.real(ball, "ball", above=0.0)
+    validate.integer(gamma_every, "gamma_every", low=1)
+
+
+def _check_sample_memory(target, method, n_walkers, n_chains, n_steps, burn) -> None:
+    """Refuse a run whose :func:`bayesmotion.validate.sample_memory` exceeds the memory
+    available (NUTS: its chains as walkers, warm-up steps counted)."""
+    model, ndim = target.model, target.ndim
+    if method == "nuts":
+        walkers, steps = n_chains, n_steps + (n_steps if burn is None else burn)
+    else:
+        walkers, steps = (n_walkers or 2 * ndim + 2), n_steps
+    need = validate.sample_memory(walkers, steps, ndim, len(model.data.trial_of_frame),
+                                  model.n_actors + 2)
+    validate.check_memory(need, f"sampling {steps} steps of {walkers} walkers over {ndim} "
+                                f"coordinates")

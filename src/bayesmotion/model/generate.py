@@ -42,6 +42,7 @@ from bayesmotion.model.predict import (
     restrict_to_styles,
     style_vectors,
 )
+from bayesmotion.validate import check_generate_args, check_generate_memory
 
 
 class Transition(NamedTuple):
@@ -317,6 +318,11 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
              start=None, seed: int = 0, predictor: Predictor | None = None,
              **styles) -> Rollout:
     """Generate a rollout; see :meth:`FittedHGPDM.generate`."""
+    check_generate_args(n_frames, n_samples, seed, {"emotion": emotion, "couple": couple,
+                                                    **styles})
+    check_generate_memory(n_frames, n_samples,
+                          sum(model.skeleton(a).n_joints for a in range(model.n_actors)),
+                          len(model.data.trial_of_frame), model.n_actors + 2)
     check_decodes(model)
     if n_frames <= model.spec.order:
         raise BayesmotionError(f"n_frames must exceed the dynamics order ({model.spec.order})")
