@@ -30,6 +30,7 @@ clips of many lengths share compiled functions.
 from __future__ import annotations
 
 import time
+import warnings
 from functools import partial
 
 import jax
@@ -42,6 +43,14 @@ from bayesmotion.emotion.density import (
     expanded_log_density,
     expanded_log_likelihood,
     style_expansion,
+    styles_from,
+)
+from bayesmotion.emotion.ood import (
+    LAYERS,
+    OutOfDistributionWarning,
+    assess,
+    clip_z2,
+    training_reference,
 )
 from bayesmotion.emotion.projection import (
     STATIC_ARGS,
@@ -59,6 +68,7 @@ from bayesmotion.model.generate import style_coords
 from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style, style_to_simplex
 from bayesmotion.model.predict import style_vectors
 from bayesmotion.shapes import padded_length
+from bayesmotion.validate import check_infer_args, check_infer_memory
 
 
 @partial(jax.jit, static_argnames=STATIC_ARGS + ("free",))
@@ -193,6 +203,10 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
     Returns:
         EmotionPosterior.
     """
+    check_infer_args(seed, n_walkers, n_steps, n_draws, couple, styles, prior)
+    fitted = model.model if isinstance(model, Posterior) else model
+    check_infer_memory(clip, fitted.fps, len(fitted.data.trial_of_frame), fitted.n_actors + 2,
+                       n_walkers, n_steps)
     if emotion_starts not in ("nearest", "levels", "vertices"):
         raise BayesmotionError(f"emotion_starts must be 'nearest', 'levels' or 'vertices', "
                                f"got {emotion_starts!r}")
@@ -273,6 +287,8 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
         params, res = min(fits, key=lambda pr: pr[1].fun)
     stage("project")
     latents = {"X": params["X"], "I": params["I"]}
+    ood = _distance_from_training(model, P, params, fixed_j, Ys, T)
+    stage("ood")
     sd = {}
     if latent_uncertainty:
         diag = diag_hessian(params, args, statics)  # exact, from coloured HVPs
@@ -334,10 +350,35 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     if [f for f, _ in free] == ["emotion"]:  # the density over the emotion alone is exact
         lsty = (E, statics["int_factors"], statics["dyn_factors"], free)
         loglik = lambda W: np.asarray(_loglik_at_coords(jnp.asarray(W), *lsty))
+    info["ood"] = ood
+    if ood["out_of_distribution"]:
+        worst = max(LAYERS, key=lambda n: ood[n]["median_z2"] / ood[n]["threshold"])
+        warnings.warn(f"the clip lies outside the training data: its median frame's "
+                      f"standardised {worst}-layer residual is {ood[worst]['median_z2']:.3g}, "
+                      f"above the {ood[worst]['threshold']:.3g} that 99% of held-out training "
+                      f"frames stay under (EmotionPosterior.info['ood']); its emotion "
+                      f"probabilities are the model's nearest explanation, not evidence",
+                      OutOfDistributionWarning, stacklevel=3)
     return EmotionPosterior(tuple(model.levels["emotion"]), styles["emotion"], lat,
                             np.swapaxes(lp, 0, 1),
                             tuple(model.levels["couple"]) if cl else None,
-                            styles.get("couple"), info, loglik, np.asarray(conc["emotion"]))
+                            styles.get("couple"), info, loglik, np.asarray(conc["emotion"]),
+                            out_of_distribution=bool(ood["out_of_distribution"]))
+
+
+def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:
+    """:func:`bayesmotion.emotion.ood.assess` of the projected clip; the training reference is
+    cached with a fitted model's own predictor."""
+    if P is model.predictor():
+        if "ood_reference" not in model._cache:
+            model._cache["ood_reference"] = training_reference(
+                P, model.data.trial_of_frame, model.spec.order)
+        reference = model._cache["ood_reference"]
+    else:  # a posterior draw's predictor
+        reference = training_reference(P, model.data.trial_of_frame, model.spec.order)
+    dyn = styles_from(params, fixed, tuple(model.spec.dynamics_factors), P.level_vectors)
+    z2 = clip_z2(P, np.asarray(params["X"])[:, :T], np.asarray(params["I"])[:T], Ys, dyn)
+    return assess(reference, z2)
 
 
 def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc):

@@ -28,6 +28,9 @@ class EmotionPosterior:
             single model; None otherwise (pooled draws, or the couple inferred too). It gives the
             highest-density credible regions (:meth:`hpd_contains`).
         prior_concentration: the emotion's Dirichlet prior.
+        out_of_distribution: the clip lies outside the training data
+            (:mod:`bayesmotion.emotion.ood`; the evidence is in ``info["ood"]``): its
+            probabilities are the model's nearest explanation, not evidence about the clip.
     """
 
     levels: tuple
@@ -39,6 +42,7 @@ class EmotionPosterior:
     info: dict = field(default_factory=dict)
     log_likelihood: object = None
     prior_concentration: np.ndarray | None = None
+    out_of_distribution: bool = False
     _idata: object = None
     _sample_logp: object = None
     _sample_loglik: object = None
@@ -224,8 +228,9 @@ class EmotionPosterior:
                            for l, m, a, b in zip(self.levels, self.mean, lo, hi, strict=True))
         eta = self.info.get("likelihood_power", 1.0)
         tempered = "" if eta == 1.0 else f"; likelihood power {eta:.3g}"
+        ood = "; OUT OF DISTRIBUTION" if self.out_of_distribution else ""
         return (f"{self.label} (P={p.max():.2f}; {self.info.get('n_frames', '?')} frames"
-                f"{tempered}); mean {coords}")
+                f"{tempered}{ood}); mean {coords}")
 
     __repr__ = __str__
 
@@ -253,4 +258,5 @@ def pool_posteriors(parts: list[EmotionPosterior]) -> EmotionPosterior:
     return EmotionPosterior(first.levels, cat([p.samples for p in parts]), first.latents,
                             cat([p.log_prob for p in parts]), first.couple_levels,
                             None if first.couple_samples is None else cat(
-                                [p.couple_samples for p in parts]), info)
+                                [p.couple_samples for p in parts]), info,
+                            out_of_distribution=any(p.out_of_distribution for p in parts))
