@@ -141,9 +141,11 @@ class AffectiveCodec:
         if mean.shape != (n,) or scale.shape != (n,):
             raise ValueError(f"{prefix.rstrip('/')}: feature mean and scale must have shape "
                              f"({n},), got {mean.shape} and {scale.shape}")
-        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(scale)) and np.all(scale > 0)):
+        # the scale divides every feature: its reciprocal, squared, must stay finite too
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(scale))
+                and np.all(scale >= 1e-150)):
             raise ValueError(f"{prefix.rstrip('/')}: feature mean and scale must be finite, "
-                             f"the scale positive")
+                             f"the scale positive (at least 1e-150)")
         return cls(base, mean, scale)
 
 

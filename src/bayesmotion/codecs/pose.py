@@ -58,6 +58,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from bayesmotion.data import mirror as mr
+from bayesmotion.data.bvh import FRAME_TIME_RANGE
 from bayesmotion.data.fk import (
     circular_mean_deg,
     euler_matrices,
@@ -533,10 +534,45 @@ class PoseCodec:
     @classmethod
     def from_saved(cls, meta: dict, arrays, prefix: str) -> PoseCodec:
         """The codec written by :meth:`to_arrays`/:meth:`to_meta`. Raises ValueError when the
-        rest frames or the mirror plan do not fit the skeleton."""
-        codec = cls._from_saved(meta, arrays, prefix)
+        metadata or an array does not fit the format (types, shapes, ranges), or the rest
+        frames or the mirror plan do not fit the skeleton."""
+        codec = cls._from_saved(_saved_meta(meta, prefix), arrays, prefix)
+        codec._check_saved(prefix)
         codec._check_rig(prefix)
         return codec
+
+    def _check_saved(self, prefix: str) -> None:
+        """Shapes, index ranges and scales of the channel arrays (ValueError naming them)."""
+        def bad(msg):
+            raise ValueError(f"{prefix.rstrip('/')}: {msg}")
+
+        sk, C = self.skeleton, self.skeleton.n_channels
+        width = C + (self.root_mode == "heading")
+        if not 0 <= self.mover < sk.n_joints:
+            bad(f"mover {self.mover} is not a joint index (0-{sk.n_joints - 1})")
+        h = self.horizontal_columns()
+        if self.root_mode == "heading" and (h.size != 2 or self.heading_axis not in (0, 1, 2)):
+            bad("root_mode 'heading' needs both horizontal position channels on the mover and "
+                f"a heading axis 0-2; got {h.size} channel(s) and axis {self.heading_axis}")
+        keep, D = self.keep, self.keep.size
+        if keep.ndim != 1 or np.unique(keep).size != D or (D and not 0 <= keep.min() <= keep.max()
+                                                           < width):
+            bad(f"kept columns must be distinct indices into the {width} columns")
+        for name, v, shape in (("constant", self.constant, (width,)), ("mean", self.mean, (D,)),
+                               ("scale", self.scale, (D,))):
+            if v.shape != shape or v.dtype != np.float64:
+                bad(f"{name} must be a float array of shape {shape}, got {v.dtype} {v.shape}")
+        if D and not np.all(self.scale >= 1.0 / _MAX_SCALE):
+            bad(f"scales must be at least {1.0 / _MAX_SCALE:g} (their reciprocal squared "
+                "stays finite)")
+        if self.branch is not None and (self.branch.shape != (width,)
+                                        or self.branch.dtype != np.float64):
+            bad(f"branch must be a float array of shape ({width},), got {self.branch.shape}")
+        lo, hi = FRAME_TIME_RANGE
+        if self.fps is not None and not 1 / hi <= self.fps <= 1 / lo:
+            bad(f"fps {self.fps!r} is outside {1 / hi:g} to {1 / lo:g}")
+        if self.heading_axis not in (-1, 0, 1, 2):
+            bad(f"heading axis must be -1 (none) or 0-2, got {self.heading_axis}")
 
     def _check_rig(self, prefix: str) -> None:
         J, C = self.skeleton.n_joints, self.skeleton.n_channels
@@ -561,21 +597,29 @@ class PoseCodec:
             for name, (got, want) in shapes.items():
                 if got != want:
                     bad(f"mirror plan {name} must have shape {want}, got {got}")
+            if perm.dtype.kind not in "iu" or left.dtype != bool:
+                bad("mirror plan partners must be integers and its sides booleans")
             if sorted(perm.tolist()) != list(range(J)) or not np.all(perm[perm] == np.arange(J)):
                 bad("mirror plan partners are not a pairing of the joints")
             if not (np.all(np.isfinite(M)) and np.all(np.isfinite(A))):
                 bad("mirror plan has non-finite values")
+            if not (np.allclose(M @ M.T, np.eye(3), atol=1e-9)
+                    and np.isclose(np.linalg.det(M), -1.0, atol=1e-9)):
+                bad("mirror plan reflection is not a reflection")
+            if not (np.allclose(A @ np.swapaxes(A, -1, -2), np.eye(3), atol=1e-9)
+                    and np.allclose(np.linalg.det(A), 1.0, atol=1e-9)):
+                bad("mirror plan frames are not rotations")
 
     @classmethod
     def _from_saved(cls, meta: dict, arrays, prefix: str) -> PoseCodec:
         side = None
         if f"{prefix}side_perm" in arrays:
-            side = MirrorPlan(np.asarray(arrays[f"{prefix}side_perm"], dtype=int),
+            side = MirrorPlan(np.asarray(arrays[f"{prefix}side_perm"]),
                               np.asarray(arrays[f"{prefix}side_reflection"], dtype=float),
                               np.asarray(arrays[f"{prefix}side_frames"], dtype=float),
-                              np.asarray(arrays[f"{prefix}side_left"], dtype=bool))
+                              np.asarray(arrays[f"{prefix}side_left"]))
         return cls(Skeleton.from_dict(meta["skeleton"]), meta["root_mode"],
-                   np.asarray(arrays[f"{prefix}keep"], dtype=int),
+                   _integers(arrays[f"{prefix}keep"], f"{prefix}keep"),
                    np.asarray(arrays[f"{prefix}constant"]), np.asarray(arrays[f"{prefix}mean"]),
                    np.asarray(arrays[f"{prefix}scale"]), meta.get("scaling", "type"),
                    int(meta.get("mover", 0)), int(meta.get("heading_axis", -1)),
@@ -586,6 +630,40 @@ class PoseCodec:
                    float(meta.get("side_threshold", 0.15)), bool(meta.get("fold_root", False)),
                    np.asarray(arrays[f"{prefix}angle_reference"], dtype=float)
                    if f"{prefix}angle_reference" in arrays else None)
+
+
+_MAX_SCALE = 1e150  # a saved scale and its reciprocal stay below this: their squares are finite
+_SAVED_META = {"root_mode": str, "scaling": str, "mover": int, "heading_axis": int,
+               "fps": (int, float, type(None)), "side_threshold": (int, float), "fold_root": bool,
+               "skeleton": dict, "pose_space": str}
+
+
+def _saved_meta(meta: dict, prefix: str) -> dict:
+    """A codec's saved metadata with its types and choices checked (ValueError otherwise)."""
+    where = prefix.rstrip("/")
+    if not isinstance(meta, dict):
+        raise ValueError(f"{where}: codec metadata must be a mapping, got {type(meta).__name__}")
+    for key, types in _SAVED_META.items():
+        v = meta.get(key)
+        if key in meta and (not isinstance(v, types) or (isinstance(v, bool)
+                                                         and types is not bool)):
+            raise ValueError(f"{where}: codec {key} has type {type(v).__name__}")
+    if meta.get("root_mode") not in ROOT_MODES:
+        raise ValueError(f"{where}: root_mode must be one of {'/'.join(ROOT_MODES)}, got "
+                         f"{meta.get('root_mode')!r}")
+    if meta.get("scaling", "type") not in ("type", "channel"):
+        raise ValueError(f"{where}: scaling must be 'type' or 'channel', got "
+                         f"{meta.get('scaling')!r}")
+    if not np.isfinite(meta.get("side_threshold", 0.15)):
+        raise ValueError(f"{where}: side_threshold must be finite")
+    return meta
+
+
+def _integers(a, name: str) -> np.ndarray:
+    a = np.asarray(a)
+    if a.dtype.kind not in "iu":
+        raise ValueError(f"{name.rstrip('/')}: must hold integers, got {a.dtype}")
+    return a
 
 
 def fold_ancestor_translation(motion: Motion, mover: int) -> Motion:

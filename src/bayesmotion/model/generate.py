@@ -196,6 +196,8 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
     o = I0.shape[0]
 
     predict_mean, style_rows = dynamics_mean_stepper(P, styles)
+    if not styles:  # no dynamics factors: every training row's style factor is 1
+        style_rows = jnp.ones((n_steps, P.dyn.A.shape[0]))
 
     def mean_step(lags, style_row):
         new = predict_mean(lags, style_row)
