@@ -1,6 +1,6 @@
-"""Mutation campaign against the BVH reader and model files (slow: minutes).
+"""Mutation campaign against the BVH reader, model files and emcee chain files (slow: minutes).
 
-    nice python benchmarks/hardening_campaign.py [--quick]
+    nice python benchmarks/hardening_campaign.py [--quick] [--only bvh|model|chain]
 
 Seeded mutations, run one after another in this process (no subprocess per case), each timed
 and then run again for its traced memory peak (``tracemalloc``: Python and NumPy allocations;
@@ -16,16 +16,36 @@ apart, as tracing slows Python several times):
   unknown members, array edits (NaN, inf, huge and tiny values, other dtypes and byte orders,
   other shapes), metadata edits (any field replaced or deleted) and header claims. Each is
   loaded with ``bayesmotion.load``; a model that loads generates 10 frames.
+* Chain files: 300 mutations (10 with ``--quick``) of a small valid emcee HDF5 chain file
+  (20 steps, 8 walkers, 2 dimensions: the joint emcee runner on a Gaussian, written once per
+  run), of 44 kinds (``CHAIN_MUTATIONS``; case i's first mutation is kind i modulo 44, one case
+  in three adds a second of a random kind): byte flips anywhere or in stored chain and
+  log_prob values, zeroed bytes, truncations, appended bytes, random-bytes and empty files;
+  the stored iteration negative, zero, too large, a float, string, array or bool; attributes
+  deleted or changed; datasets deleted, reshaped, retyped, replaced by a group, shrunk or
+  grown; NaN, inf and huge values written into stored chain or log_prob rows (and NaN past the
+  stored steps, which is not damage); the group renamed, deleted or replaced by a dataset.
+  Each file goes through three stages: ``read`` (``ChainFile(path, read_only=True)``:
+  ``get_chain``, ``get_log_prob``, ``get_last_sample``, ``accepted``, ``iteration``),
+  ``check`` (``check_chain_file``, what ``sample_posterior`` runs before any work) and
+  ``resume`` (``run_emcee`` resuming it to 25 steps: the runner ``sample_posterior`` calls,
+  with its checks, grow and saves); each stage's outcome is counted in ``by_stage``.
 
-Outcomes per case: ``accepted`` (a Motion; a model that loads and generates finite motion),
+Outcomes per case: ``accepted`` (a Motion; a model that loads and generates finite motion; a
+chain file that every stage reads or resumes with every returned value finite),
 ``documented error`` (BVHError; ModelFileError at load, or a BayesmotionError from generate on
-a loaded model), ``other exception`` (any other exception: a bug), and the flags ``over time``
-(BVH > 1 s, model load > 5 s; listed in ``over_time_or_memory``) and ``over memory``
-(> 256 MB traced). A loaded model whose
+a loaded model; a BayesmotionError naming the chain file from any stage), ``other exception``
+(any other exception, or a chain file's BayesmotionError not naming it: a bug), and the flags
+``over time`` (BVH > 1 s, model load > 5 s, a chain file's three stages > 5 s; listed in
+``over_time_or_memory``) and ``over memory`` (> 256 MB traced). A loaded model whose
 generated motion is not finite is counted apart (``accepted, non-finite output``), and one whose
-predictive variances overflow is flagged (``non-finite variance``). The JSON
-goes to ``results/hardening_campaign.json``; the exit status is 1 if any other exception
-happened.
+predictive variances overflow is flagged (``non-finite variance``). A chain file is counted as
+``silent acceptance`` when a stage accepted it although its stored steps (read with plain
+h5py: the rows below the stored iteration) hold a NaN or inf chain or log_prob value, or a
+stage returned a non-finite value; these are listed in ``silent_acceptances`` and must be 0.
+The JSON goes to ``results/hardening_campaign.json`` (with ``--only``, that section replaces
+its own in the existing JSON of the same mode and the totals are recomputed); the exit status
+is 1 if any other exception or silent acceptance happened.
 """
 
 from __future__ import annotations
@@ -54,9 +74,9 @@ if str(HERE) not in sys.path:
 from _common import RESULTS, headline, machine_info, write_json  # noqa: E402
 
 NAME = "hardening_campaign"
-FULL = {"bvh_cases": 2000, "model_cases": 700, "seed": 20261126}
-QUICK = {"bvh_cases": 200, "model_cases": 70, "seed": 20261126}
-BVH_TIME_S, MODEL_TIME_S, MEMORY_B = 1.0, 5.0, 256 * 2**20
+FULL = {"bvh_cases": 2000, "model_cases": 700, "chain_cases": 300, "seed": 20261126}
+QUICK = {"bvh_cases": 200, "model_cases": 70, "chain_cases": 10, "seed": 20261126}
+BVH_TIME_S, MODEL_TIME_S, CHAIN_TIME_S, MEMORY_B = 1.0, 5.0, 5.0, 256 * 2**20
 NUMBERS = [b"1e308", b"1e309", b"-1e999", b"1e-320", b"nan", b"NaN", b"-inf", b"Infinity",
            "\u0663".encode(), "\uff11\uff12".encode(), "\u00b2".encode("latin-1"), b"1_000",
            b"0x1F", b"1e", b"--1", b".", b"+", b"9" * 400, b"1" * 5000, b"\x00", b"\xff\xfe",
@@ -362,42 +382,494 @@ def _raw(case, kinds, stage, e) -> dict:
             "error": f"{type(e).__name__}: {e}"[:300], "traceback": traceback.format_exc()[-1500:]}
 
 
+# --------------------------------------------------------------------------- chain files
+CHAIN_GROUP, CHAIN_STEPS, CHAIN_WALKERS = "mcmc", 20, 8
+CHAIN_MU, CHAIN_SD = np.array([1.0, -2.0]), np.array([0.5, 2.0])
+_ATTRS = ("nwalkers", "ndim", "iteration", "has_blobs", *(f"random_state_{i}" for i in range(5)))
+_DATASETS = ("chain", "log_prob", "accepted")
+
+
+class _Gaussian:
+    """N(CHAIN_MU, diag(CHAIN_SD^2)) in the runner's target interface."""
+
+    ndim, model = CHAIN_MU.size, None
+
+    def logp_batch(self, xs):
+        return -0.5 * np.sum(((np.asarray(xs) - CHAIN_MU) / CHAIN_SD) ** 2, axis=-1)
+
+
+def _run_chain(path, n_steps: int):
+    """The joint emcee runner (as ``sample_posterior`` calls it) on a 2-D Gaussian, writing or
+    resuming the chain file ``path``: it checks the file (``check_chain_file``), opens and
+    grows its group and saves each step."""
+    import warnings
+
+    from bayesmotion.inference.emcee_runner import run_emcee
+    from bayesmotion.inference.posterior import ChainTooShortWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        return run_emcee(_Gaussian(), CHAIN_MU, n_walkers=CHAIN_WALKERS, n_steps=n_steps,
+                         burn=0, thin=1, seed=3, backend=path, progress=False, init="ball",
+                         ball=1e-2, moves=None)
+
+
+def _group_edit(edit):
+    """A mutation editing the chain group of the file in place with h5py."""
+    def apply(path, rng):
+        import h5py
+
+        with h5py.File(path, "a") as f:
+            edit(f[CHAIN_GROUP], rng)
+    return apply
+
+
+def _file_edit(edit):
+    """A mutation of the file's bytes."""
+    def apply(path, rng):
+        path.write_bytes(edit(path.read_bytes(), rng))
+    return apply
+
+
+def _pick(rng, seq):
+    return seq[int(rng.integers(0, len(seq)))]
+
+
+def _stored_index(g, key: str, rng) -> tuple:
+    """A random element of dataset ``key`` within the stored steps."""
+    ds = g[key]
+    n = min(int(g.attrs["iteration"]), ds.shape[0])
+    if n <= 0:
+        raise ValueError("no stored step")
+    return (int(rng.integers(0, n)),) + tuple(int(rng.integers(0, m)) for m in ds.shape[1:])
+
+
+def _element_offset(path, key: str, index: tuple) -> int:
+    """Byte offset in the file of one element of a chunked, uncompressed dataset."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        ds = f[f"{CHAIN_GROUP}/{key}"]
+        start = tuple(i - i % c for i, c in zip(index, ds.chunks, strict=True))
+        info = ds.id.get_chunk_info_by_coord(start)
+        local = np.ravel_multi_index(tuple(i - s for i, s in zip(index, start, strict=True)),
+                                     ds.chunks)
+        return int(info.byte_offset) + int(local) * ds.dtype.itemsize
+
+
+def _data_bytes(key: str, exponent: bool):
+    """Flip one byte of a stored element of ``key`` (``exponent``: set every exponent bit of
+    the float64, making it NaN or inf)."""
+    def apply(path, rng):
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            index = _stored_index(f[CHAIN_GROUP], key, rng)
+        off = _element_offset(path, key, index)
+        b = bytearray(path.read_bytes())
+        if exponent:
+            b[off + 6] |= 0xF0
+            b[off + 7] |= 0x7F
+        else:
+            b[off + int(rng.integers(0, 8))] ^= int(rng.integers(1, 256))
+        path.write_bytes(bytes(b))
+    return apply
+
+
+def _set_value(key: str, values, row: bool = False):
+    """Write one of ``values`` at a random element (``row``: a whole step) of ``key`` within
+    the stored steps."""
+    def edit(g, rng):
+        index = _stored_index(g, key, rng)
+        g[key][index[:1] if row else index] = _pick(rng, values)
+    return _group_edit(edit)
+
+
+def _set_attr(key, values):
+    return _group_edit(lambda g, rng: g.attrs.__setitem__(key, _pick(rng, values)))
+
+
+def _flip_bytes(n):
+    def edit(raw, rng):
+        b = bytearray(raw)
+        for _ in range(n):
+            b[int(rng.integers(0, len(b)))] ^= int(rng.integers(1, 256))
+        return bytes(b)
+    return edit
+
+
+def _zero_run(raw, rng):
+    at, n = int(rng.integers(0, len(raw))), int(rng.integers(8, 257))
+    return raw[:at] + bytes(len(raw[at:at + n])) + raw[at + n:]
+
+
+def _del_attr(g, rng):
+    del g.attrs[_pick(rng, _ATTRS)]
+
+
+def _shape_attr(g, rng):
+    g.attrs[_pick(rng, ("nwalkers", "ndim"))] = int(rng.integers(-3, 20))
+
+
+def _del_dataset(g, rng):
+    del g[_pick(rng, _DATASETS)]
+
+
+def _wrong_shape(g, rng):
+    key = _pick(rng, _DATASETS)
+    shape = list(g[key].shape)
+    axis = int(rng.integers(0, len(shape) + 1))
+    if axis == len(shape):
+        shape.append(int(rng.integers(1, 4)))  # one axis more
+    else:
+        shape[axis] = max(0, shape[axis] + int(rng.choice([-3, -1, 1, 2])))
+    del g[key]
+    g.create_dataset(key, data=np.zeros(shape))
+
+
+def _wrong_dtype(g, rng):
+    key = _pick(rng, _DATASETS)
+    data = g[key][...]
+    dtype = _pick(rng, ("<i8", "?", "<f2", ">f4", "<c16", "S8", "<u1"))
+    del g[key]
+    with np.errstate(all="ignore"):
+        g.create_dataset(key, data=data.astype(dtype))
+
+
+def _shrunk(g, rng):
+    n = int(rng.integers(0, g["chain"].shape[0]))
+    for key in _pick(rng, (("chain",), ("log_prob",), ("chain", "log_prob"))):
+        g[key].resize(n, axis=0)
+
+
+def _grown_nan(g, rng):
+    """Rows past the stored steps, holding NaN (as a killed longer run leaves unwritten rows):
+    not damage."""
+    n, more = g["chain"].shape[0], int(rng.integers(1, 30))
+    for key in ("chain", "log_prob"):
+        g[key].resize(n + more, axis=0)
+        g[key][n:] = np.nan
+
+
+def _lowered_nan_after(g, rng):
+    """The stored iteration lowered to k (the acceptance counts capped at k), NaN written in the
+    rows after it: not damage."""
+    it = int(g.attrs["iteration"])
+    k = int(rng.integers(1, it))
+    g.attrs["iteration"] = k
+    g["accepted"][...] = np.minimum(g["accepted"][...], k)
+    g["chain"][k:it] = np.nan
+    g["log_prob"][k:it] = np.inf
+
+
+def _accepted_out(g, rng):
+    it = int(g.attrs["iteration"])
+    acc = g["accepted"][...].astype(float)
+    acc[int(rng.integers(0, acc.size))] = _pick(rng, (-1.0, it + 1.0, np.nan, np.inf, 1e300))
+    g["accepted"][...] = acc
+
+
+def _dataset_to_group(g, rng):
+    key = _pick(rng, _DATASETS)
+    del g[key]
+    g.create_group(key)
+
+
+def _extra_member(g, rng):
+    g.create_dataset(f"extra_{int(rng.integers(0, 100))}", data=rng.random(5))
+
+
+def _root_edit(edit):
+    def apply(path, rng):
+        import h5py
+
+        with h5py.File(path, "a") as f:
+            edit(f, rng)
+    return apply
+
+
+def _renamed(f, rng):
+    f.move(CHAIN_GROUP, _pick(rng, ("mcmc_old", "MCMC", "gamma", "chain")))
+
+
+def _group_to_dataset(f, rng):
+    del f[CHAIN_GROUP]
+    f[CHAIN_GROUP] = rng.random(int(rng.integers(0, 10)))
+
+
+def _group_deleted(f, rng):
+    del f[CHAIN_GROUP]
+
+
+#: name -> mutation(path, rng): each edits the file at ``path`` in place
+CHAIN_MUTATIONS = {
+    # bytes
+    "byte flip": _file_edit(_flip_bytes(1)),
+    "byte flips x8": _file_edit(_flip_bytes(8)),
+    "bytes zeroed": _file_edit(_zero_run),
+    "chain data byte flip": _data_bytes("chain", exponent=False),
+    "log_prob data byte flip": _data_bytes("log_prob", exponent=False),
+    "chain data exponent set": _data_bytes("chain", exponent=True),
+    "log_prob data exponent set": _data_bytes("log_prob", exponent=True),
+    "truncated": _file_edit(lambda raw, rng: raw[:int(rng.integers(0, len(raw)))]),
+    "truncated in its header": _file_edit(lambda raw, rng: raw[:int(rng.integers(0, 2048))]),
+    "random bytes appended": _file_edit(
+        lambda raw, rng: raw + rng.bytes(int(rng.integers(1, 4097)))),
+    "random bytes file": _file_edit(lambda raw, rng: rng.bytes(int(rng.integers(1, 8193)))),
+    "random bytes after the signature": _file_edit(
+        lambda raw, rng: raw[:8] + rng.bytes(len(raw) - 8)),
+    "empty file": _file_edit(lambda raw, rng: b""),
+    # the stored iteration
+    "iteration negative": _set_attr("iteration", (-1, -2, -CHAIN_STEPS, -(2**31), -(2**62))),
+    "iteration too large": _set_attr("iteration", (CHAIN_STEPS + 1, CHAIN_STEPS + 5, 10**6,
+                                                   2**62, np.uint64(2**64 - 1))),
+    "iteration a float": _set_attr("iteration", (2.5, float(CHAIN_STEPS), np.nan, np.inf,
+                                                 -0.5, 1e300)),
+    "iteration a string": _set_attr("iteration", ("20", "twenty", b"\xff", "")),
+    "iteration an array": _set_attr("iteration", (np.arange(3), np.array([CHAIN_STEPS]),
+                                                  np.zeros((0,)))),
+    "iteration a bool": _set_attr("iteration", (True, False)),
+    "iteration zero": _set_attr("iteration", (0, np.int8(0), np.uint64(0))),
+    "iteration lowered, NaN after it": _group_edit(_lowered_nan_after),
+    # other attributes
+    "attribute deleted": _group_edit(_del_attr),
+    "nwalkers or ndim changed": _group_edit(_shape_attr),
+    "has_blobs set": _set_attr("has_blobs", (True, 1, 7)),
+    "random state garbage": _group_edit(lambda g, rng: g.attrs.__setitem__(
+        f"random_state_{int(rng.integers(0, 5))}",
+        _pick(rng, (np.arange(3), "x", -1, np.zeros(624, dtype=np.uint8), 2.5)))),
+    "adaptation length bad": _set_attr("bayesmotion_adapt_steps", (-4, 2.5, "ten", np.arange(2))),
+    # datasets
+    "dataset deleted": _group_edit(_del_dataset),
+    "dataset of another shape": _group_edit(_wrong_shape),
+    "dataset of another dtype": _group_edit(_wrong_dtype),
+    "dataset replaced by a group": _group_edit(_dataset_to_group),
+    "datasets shrunk": _group_edit(_shrunk),
+    "datasets grown with NaN rows": _group_edit(_grown_nan),
+    "accepted out of range": _group_edit(_accepted_out),
+    "extra dataset": _group_edit(_extra_member),
+    # stored values
+    "NaN in chain": _set_value("chain", (np.nan,)),
+    "inf in chain": _set_value("chain", (np.inf, -np.inf)),
+    "NaN row in chain": _set_value("chain", (np.nan, np.inf), row=True),
+    "NaN in log_prob": _set_value("log_prob", (np.nan,)),
+    "inf in log_prob": _set_value("log_prob", (np.inf, -np.inf)),
+    "huge value in chain": _set_value("chain", (1e308, -1e308, 1e-320)),
+    "huge value in log_prob": _set_value("log_prob", (-1e308, 1e308)),
+    # the group
+    "group renamed": _root_edit(_renamed),
+    "group deleted": _root_edit(_group_deleted),
+    "group replaced by a dataset": _root_edit(_group_to_dataset),
+}
+
+
+def mutate_chain(base: bytes, path: Path, case: int, rng) -> tuple[bytes, list[str]]:
+    """The base file with one or two seeded mutations: the first of kind ``case`` modulo the
+    kinds (so every kind is run), a second (one case in three) of a random kind, dropped (the
+    file as the first left it) when it cannot be applied to what the first left."""
+    names = list(CHAIN_MUTATIONS)
+    kinds = [names[case % len(names)]]
+    if rng.random() < 1 / 3:
+        kinds.append(_pick(rng, names))
+    data, done = base, []
+    for k in kinds:
+        path.write_bytes(data)
+        try:
+            CHAIN_MUTATIONS[k](path, rng)
+        except Exception:  # noqa: BLE001 -- an earlier mutation left nothing to edit: keep it
+            if not done:
+                raise
+            continue
+        data = path.read_bytes()
+        done.append(k)
+    return data, done
+
+
+def _stored_nonfinite(path) -> bool | None:
+    """Whether the chain group's stored steps (all rows when the stored iteration is not an
+    integer) hold a non-finite chain or log_prob value, read with plain h5py; None when h5py
+    cannot tell."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            g = f[CHAIN_GROUP]
+            it = np.asarray(g.attrs.get("iteration", -1))
+            for key in ("chain", "log_prob"):
+                ds = g[key]
+                n = ds.shape[0]
+                if it.shape == () and it.dtype.kind in "iu":
+                    n = min(max(int(it), 0), n)
+                if not np.all(np.isfinite(ds[:n])):
+                    return True
+        return False
+    except Exception:  # noqa: BLE001 -- a file plain h5py cannot read either
+        return None
+
+
+def _finite(*arrays) -> bool:
+    return all(np.all(np.isfinite(np.asarray(a, dtype=np.float64))) for a in arrays)
+
+
+def _chain_stages(data: bytes, path: Path, case: int, kinds: list[str]):
+    """What a user does with the file: read it with ChainFile, check it as sample_posterior
+    does, resume it with the runner. Returns {stage: outcome} and the raw errors."""
+    from bayesmotion.errors import BayesmotionError
+    from bayesmotion.inference.chainfile import ChainFile, check_chain_file
+
+    path.write_bytes(data)
+    damaged = _stored_nonfinite(path)
+    outcomes, raw = {}, []
+
+    def read():
+        be = ChainFile(str(path), read_only=True)
+        chain, log_prob = be.get_chain(), be.get_log_prob()
+        last = be.get_last_sample()
+        return (_finite(chain, log_prob, last.coords, last.log_prob, be.accepted)
+                and be.iteration == len(chain) == len(log_prob))
+
+    def check():
+        check_chain_file(path)
+        return True
+
+    def resume():
+        post = _run_chain(path, CHAIN_STEPS + 5)
+        be = ChainFile(str(path), read_only=True)
+        return _finite(post.chains, be.get_chain(), be.get_log_prob())
+
+    for stage, attempt in (("read", read), ("check", check), ("resume", resume)):
+        try:
+            finite = attempt()
+            outcomes[stage] = ("silent acceptance" if damaged or not finite else "accepted")
+        except BayesmotionError as e:
+            outcomes[stage] = "documented error"
+            if str(path) not in str(e):
+                raw.append({**_raw(case, kinds, stage, e), "why": "message lacks the path"})
+                outcomes[stage] = "other exception"
+        except Exception as e:  # noqa: BLE001 -- what the campaign counts
+            outcomes[stage] = "other exception"
+            raw.append(_raw(case, kinds, stage, e))
+    return outcomes, raw
+
+
+def chain_campaign(n: int, seed: int, folder: Path) -> dict:
+    base_path = folder / "base.h5"
+    _run_chain(base_path, CHAIN_STEPS)
+    base = base_path.read_bytes()
+    out = Counter()
+    by_kind: dict[str, Counter] = {}
+    by_stage: dict[str, Counter] = {}
+    times, peaks, raw_errors, slow, silent = [], [], [], [], []
+    work, path = folder / "mutating.h5", folder / "case.h5"
+    for case in range(n):
+        rng = np.random.default_rng([seed, case])
+        data, kinds = mutate_chain(base, work, case, rng)
+        (stages, raw), dt, peak = _measured(partial(_chain_stages, data, path, case, kinds))
+        raw_errors.extend(raw)
+        for stage, o in stages.items():
+            by_stage.setdefault(stage, Counter())[o] += 1
+        order = ("other exception", "silent acceptance", "documented error", "accepted")
+        outcome = next(o for o in order if o in stages.values())
+        if outcome == "silent acceptance":
+            silent.append({"case": case, "mutations": kinds, "stages": stages})
+        if dt > CHAIN_TIME_S or peak > MEMORY_B:
+            slow.append({"case": case, "mutations": kinds, "seconds": dt, "peak_mb": peak / 2**20})
+        _count(out, by_kind, kinds, outcome, dt > CHAIN_TIME_S, peak > MEMORY_B)
+        times.append(dt)
+        peaks.append(peak)
+    res = _summary(n, out, by_kind, times, peaks, raw_errors, slow)
+    res["outcomes"].setdefault("silent acceptance", 0)
+    res["outcomes"].setdefault("other exception", 0)
+    res["by_stage"] = {k: dict(v) for k, v in by_stage.items()}
+    res["mutation_kinds"] = len(CHAIN_MUTATIONS)
+    res["silent_acceptances"] = silent[:50]
+    res["base_file"] = {"steps": CHAIN_STEPS, "walkers": CHAIN_WALKERS, "ndim": CHAIN_MU.size,
+                        "bytes": len(base)}
+    return res
+
+
 # ------------------------------------------------------------------------------ driver
-def run(quick: bool) -> dict:
-    settings = QUICK if quick else FULL
-    with tempfile.TemporaryDirectory() as tmp:
-        bvh = bvh_campaign(settings["bvh_cases"], settings["seed"], Path(tmp))
-        model = model_campaign(settings["model_cases"], settings["seed"], Path(tmp))
-    raw = bvh["outcomes"].get("other exception", 0) + model["outcomes"].get("other exception", 0)
+def _headline(res: dict) -> list:
     rows = []
-    for name, r in (("BVH mutations", bvh), ("model-file mutations", model)):
+    for key, name in (("bvh", "BVH mutations"), ("model", "model-file mutations"),
+                      ("chain", "chain-file mutations")):
+        if key not in res:
+            continue
+        r = res[key]
         o = r["outcomes"]
+        note = (f"accepted {o.get('accepted', 0)}, documented errors "
+                f"{o.get('documented error', 0)}, over time {o.get('over time', 0)}, over "
+                f"memory {o.get('over memory', 0)}")
         rows.append(headline(f"{name}: other exceptions of {r['cases']}",
                              o.get("other exception", 0), "", "0",
-                             o.get("other exception", 0) == 0,
-                             f"accepted {o.get('accepted', 0)}, documented errors "
-                             f"{o.get('documented error', 0)}, over time "
-                             f"{o.get('over time', 0)}, over memory {o.get('over memory', 0)}"))
-    return {"settings": settings, "bvh": bvh, "model": model, "other_exceptions": raw,
-            "headline": rows}
+                             o.get("other exception", 0) == 0, note))
+        if key == "chain":
+            rows.append(headline(f"{name}: corrupted steps silently accepted of {r['cases']}",
+                                 o.get("silent acceptance", 0), "", "0",
+                                 o.get("silent acceptance", 0) == 0, note))
+    return rows
+
+
+def _totals(res: dict) -> dict:
+    parts = [res[k] for k in ("bvh", "model", "chain") if k in res]
+    res["other_exceptions"] = sum(r["outcomes"].get("other exception", 0) for r in parts)
+    res["silent_acceptances"] = sum(r["outcomes"].get("silent acceptance", 0) for r in parts)
+    res["headline"] = _headline(res)
+    return res
+
+
+def run(quick: bool, only: str | None = None) -> dict:
+    settings = QUICK if quick else FULL
+    res = {"settings": settings}
+    with tempfile.TemporaryDirectory() as tmp:
+        if only in (None, "bvh"):
+            res["bvh"] = bvh_campaign(settings["bvh_cases"], settings["seed"], Path(tmp))
+        if only in (None, "model"):
+            res["model"] = model_campaign(settings["model_cases"], settings["seed"], Path(tmp))
+        if only in (None, "chain"):
+            res["chain"] = chain_campaign(settings["chain_cases"], settings["seed"], Path(tmp))
+    return _totals(res)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="200 BVH and 70 model-file cases")
+    ap.add_argument("--quick", action="store_true",
+                    help="200 BVH, 70 model-file and 10 chain-file cases")
+    ap.add_argument("--only", choices=("bvh", "model", "chain"),
+                    help="run one section and merge it into the existing JSON of the same mode, "
+                         "keeping the other sections' results")
     a = ap.parse_args()
     import bayesmotion  # noqa: F401  (float64 on)
 
+    mode = "quick" if a.quick else "full"
     t0 = time.perf_counter()
-    res = run(a.quick)
-    write_json(RESULTS / f"{NAME}.json", {"name": NAME, "mode": "quick" if a.quick else "full",
-                                          **res, "wall_s": time.perf_counter() - t0,
-                                          "status": "ok", "machine": machine_info()})
-    for part in ("bvh", "model"):
-        print(part, res[part]["cases"], "cases:", res[part]["outcomes"])
-    for e in res["bvh"]["other_exceptions"] + res["model"]["other_exceptions"]:
-        print("OTHER EXCEPTION:", e["case"], e["mutations"], e["error"])
-    return 1 if res["other_exceptions"] else 0
+    res = run(a.quick, a.only)
+    wall = time.perf_counter() - t0
+    out = {"name": NAME, "mode": mode, **res, "wall_s": wall}
+    target = RESULTS / f"{NAME}.json"
+    if a.only:
+        old = json.loads(target.read_text()) if target.exists() else {}
+        if old.get("mode") != mode:
+            print(f"{target} holds no {mode} run to merge into", file=sys.stderr)
+            return 2
+        key = f"{a.only}_cases"
+        old["settings"] = {**old.get("settings", {}), key: res["settings"][key]}
+        old[a.only] = res[a.only]
+        old.setdefault("section_runs", {})[a.only] = {"wall_s": wall, "machine": machine_info()}
+        out = _totals(old)
+        out.update(status="ok")
+    else:
+        out.update(status="ok", machine=machine_info())
+    write_json(target, out)
+    for part in ("bvh", "model", "chain"):
+        if part in out:
+            print(part, out[part]["cases"], "cases:", out[part]["outcomes"])
+    for part in ("bvh", "model", "chain"):
+        for e in out.get(part, {}).get("other_exceptions", []):
+            print("OTHER EXCEPTION:", part, e["case"], e["mutations"], e["stage"], e["error"])
+    for e in out.get("chain", {}).get("silent_acceptances", []):
+        print("SILENT ACCEPTANCE:", e["case"], e["mutations"], e["stages"])
+    return 1 if out["other_exceptions"] or out["silent_acceptances"] else 0
 
 
 if __name__ == "__main__":

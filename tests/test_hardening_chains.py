@@ -337,3 +337,86 @@ def test_cli_sample_refuses_a_damaged_backend_with_one_line(model_chain, tmp_pat
     assert lines[1].startswith("hint: ")
     assert seconds < 5, f"took {seconds:.1f} s"
     assert (sorted(p.name for p in tmp_path.iterdir()), path.read_bytes()) == before
+
+
+# --------------------------------------------------------------------------- property
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+SHAPES = {"chain": (STEPS, W, D), "log_prob": (STEPS, W), "accepted": (W,)}
+ATTRS = ("nwalkers", "ndim", "iteration", "has_blobs")
+VALUES = ("nan", "inf", "huge", "negative", "random bytes")
+
+
+@st.composite
+def corruptions(draw):
+    """(where, index, kind, value): one stored element of a dataset (an index within its
+    shape) or one integer attribute, replaced by NaN, +-inf, a huge or a negative number, or
+    random bytes (a dataset element's 8 raw bytes; an attribute's value as a byte string)."""
+    where = draw(st.sampled_from(sorted(SHAPES) + list(ATTRS)))
+    kind = draw(st.sampled_from(VALUES))
+    index = tuple(draw(st.integers(0, n - 1)) for n in SHAPES.get(where, ()))
+    if kind == "nan":
+        value = np.nan
+    elif kind == "inf":
+        value = draw(st.sampled_from([np.inf, -np.inf]))
+    elif kind == "huge":
+        value = (draw(st.floats(1e200, 1.7976931348623157e308)) if where in SHAPES
+                 else draw(st.integers(2**31, 2**63 - 1)))
+    elif kind == "negative":
+        value = (draw(st.floats(-1e300, -1e-300)) if where in SHAPES
+                 else draw(st.integers(-(2**63), -1)))
+    else:
+        value = draw(st.binary(min_size=8 if where in SHAPES else 1, max_size=8))
+    return where, index, kind, value
+
+
+def corrupt(path, where, index, kind, value) -> None:
+    if where in SHAPES and kind == "random bytes":
+        with h5py.File(path, "r") as f:
+            ds = f["mcmc"][where]
+            contiguous = ds.chunks is None
+            start = ds.id.get_offset() if contiguous else None
+        off = (start + int(np.ravel_multi_index(index, SHAPES[where])) * 8 if contiguous
+               else raw_offset(path, f"mcmc/{where}", index))
+        poke(path, off, value)
+        return
+    with h5py.File(path, "a") as f:
+        g = f["mcmc"]
+        if where in SHAPES:
+            g[where][index] = value
+        else:
+            g.attrs[where] = np.bytes_(value) if kind == "random bytes" else value
+
+
+@settings(max_examples=40, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(corruptions())
+def test_any_corruption_is_read_finite_or_refused_naming_the_file(good, tmp_path, damage):
+    """Opening and reading a corrupted chain file with ChainFile (and checking it as a resumed
+    run does) returns finite stored steps, a stored iteration within the datasets, or raises a
+    BayesmotionError naming the file; never another exception."""
+    path = tmp_path / "chain.h5"
+    shutil.copyfile(good, path)
+    corrupt(path, *damage)
+    be = ChainFile(str(path), read_only=True)
+    reads = {"iteration": lambda: be.iteration, "chain": be.get_chain,
+             "log_prob": lambda: be.get_log_prob(flat=True), "accepted": lambda: be.accepted,
+             "check": lambda: check_chain_file(path)["mcmc"]}
+    got = {}
+    for name, read in reads.items():
+        try:
+            got[name] = read()
+        except BayesmotionError as e:
+            assert str(path) in str(e), (name, damage, str(e))
+        else:
+            if name != "check":
+                assert np.all(np.isfinite(got[name])), (name, damage)
+    if "iteration" in got:
+        with h5py.File(path, "r") as f:
+            rows = min(f["mcmc/chain"].shape[0], f["mcmc/log_prob"].shape[0])
+        assert 0 <= got["iteration"] <= rows, damage
+        if "chain" in got:
+            assert len(got["chain"]) == got["iteration"], damage
+        if "check" in got:
+            assert got["check"] == got["iteration"], damage

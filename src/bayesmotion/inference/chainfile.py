@@ -247,7 +247,11 @@ class ChainFile(emcee.backends.HDFBackend):
             raise RuntimeError("The backend has been loaded in read-only mode. Set "
                                "`read_only = False` to make changes.")
         with h5_errors(self.filename, "open"):
-            f = _waiting(lambda: super(ChainFile, self).open(mode), self.filename)
+            try:
+                f = _waiting(lambda: super(ChainFile, self).open(mode), self.filename)
+            except AttributeError as e:  # emcee reads g["chain"].dtype: a damaged layout
+                raise BayesmotionError(f"{self.filename}: chain group {self.name!r} is not a "
+                                       f"chain file's layout ({e}); {_AFTER}") from e
         try:
             with h5_errors(self.filename):
                 if self.name in f:
@@ -280,6 +284,7 @@ class ChainFile(emcee.backends.HDFBackend):
     def get_value(self, name, flat=False, thin=1, discard=0):
         """emcee's ``get_value``, refusing a non-finite stored chain or log-density value (the
         message names its step)."""
+        self._has_steps()
         with h5_errors(self.filename):
             v = super().get_value(name, False, thin, discard)
         if name in ("chain", "log_prob") and v is not None:
@@ -293,6 +298,21 @@ class ChainFile(emcee.backends.HDFBackend):
         if flat and v is not None:
             v = v.reshape(v.shape[0] * v.shape[1], *v.shape[2:])
         return v
+
+    def get_last_sample(self):
+        """emcee's ``get_last_sample``, naming the file when it holds no step."""
+        self._has_steps()
+        with h5_errors(self.filename):
+            return super().get_last_sample()
+
+    def _has_steps(self) -> None:
+        """Refuse reading a file without this group or with no stored step (emcee raises an
+        AttributeError about ``store == True`` there)."""
+        if not self.initialized or self.iteration <= 0:
+            raise BayesmotionError(f"{self.filename}: chain group {self.name!r} holds no stored "
+                                   f"step (the group is missing or its stored iteration is "
+                                   f"0): nothing to read; run sample_posterior with this "
+                                   f"backend to write steps, or pass the file a run wrote")
 
     def grow(self, ngrow, blobs):
         """Room for ``ngrow`` more steps, never shrinking the datasets: a killed run leaves
