@@ -75,3 +75,10 @@ def test_training_clips_pass_and_foreign_motion_is_flagged(tiny_model):
         post = bm.infer_emotion(tiny_model, shaken, n_steps=60)
     assert post.out_of_distribution and "OUT OF DISTRIBUTION" in str(post)
     assert post.info["ood"]["score"] > 3 * own.info["ood"]["score"]
+    # a motionless clip (the first frame held): the dynamics layer cannot explain it
+    still = bm.Trial(tuple(bm.Motion(a.skeleton, np.repeat(a.values[:1], a.n_frames, 0), a.fps,
+                                     a.name) for a in trial.actors), dict(trial.labels), "still")
+    with pytest.warns(OutOfDistributionWarning):
+        post = bm.infer_emotion(tiny_model, still, n_steps=60)
+    d = post.info["ood"]["dynamics"]
+    assert post.out_of_distribution and d["median_z2"] > d["threshold"]
