@@ -136,11 +136,7 @@ def bvh_campaign(n: int, seed: int, folder: Path) -> dict:
         (outcome, raw), dt, peak = _measured(partial(_read_case, path, case, kinds))
         if raw:
             raw_errors.append(raw)
-        if dt > BVH_TIME_S or peak > MEMORY_B:
-            slow.append({"case": case, "mutations": kinds, "seconds": dt, "peak_mb": peak / 2**20})
-        _count(out, by_kind, kinds, outcome, dt > BVH_TIME_S, peak > MEMORY_B)
-        times.append(dt)
-        peaks.append(peak)
+        _record(out, by_kind, kinds, outcome, case, dt, peak, BVH_TIME_S, slow, times, peaks)
     return _summary(n, out, by_kind, times, peaks, raw_errors, slow)
 
 
@@ -190,6 +186,15 @@ def _count(out, by_kind, kinds, outcome, slow, big):
     out["over memory"] += big
     for k in set(kinds):
         by_kind.setdefault(k, Counter())[outcome] += 1
+
+
+def _record(out, by_kind, kinds, outcome, case, dt, peak, limit_s, slow, times, peaks):
+    """Count one case's outcome, listing it when it ran over ``limit_s`` or the memory bound."""
+    if dt > limit_s or peak > MEMORY_B:
+        slow.append({"case": case, "mutations": kinds, "seconds": dt, "peak_mb": peak / 2**20})
+    _count(out, by_kind, kinds, outcome, dt > limit_s, peak > MEMORY_B)
+    times.append(dt)
+    peaks.append(peak)
 
 
 def _summary(n, out, by_kind, times, peaks, raw_errors, slow) -> dict:
@@ -366,11 +371,7 @@ def model_campaign(n: int, seed: int, folder: Path) -> dict:
                 outcome = "other exception"
                 raw_errors.append(_raw(case, kinds, "generate", e))
             gen_s.append(time.perf_counter() - t1)
-        if dt > MODEL_TIME_S or peak > MEMORY_B:
-            slow.append({"case": case, "mutations": kinds, "seconds": dt, "peak_mb": peak / 2**20})
-        _count(out, by_kind, kinds, outcome, dt > MODEL_TIME_S, peak > MEMORY_B)
-        times.append(dt)
-        peaks.append(peak)
+        _record(out, by_kind, kinds, outcome, case, dt, peak, MODEL_TIME_S, slow, times, peaks)
     res = _summary(n, out, by_kind, times, peaks, raw_errors, slow)
     res["generated"] = len(gen_s)
     res["generate_seconds_total"] = float(sum(gen_s))
@@ -772,11 +773,7 @@ def chain_campaign(n: int, seed: int, folder: Path) -> dict:
         outcome = next(o for o in order if o in stages.values())
         if outcome == "silent acceptance":
             silent.append({"case": case, "mutations": kinds, "stages": stages})
-        if dt > CHAIN_TIME_S or peak > MEMORY_B:
-            slow.append({"case": case, "mutations": kinds, "seconds": dt, "peak_mb": peak / 2**20})
-        _count(out, by_kind, kinds, outcome, dt > CHAIN_TIME_S, peak > MEMORY_B)
-        times.append(dt)
-        peaks.append(peak)
+        _record(out, by_kind, kinds, outcome, case, dt, peak, CHAIN_TIME_S, slow, times, peaks)
     res = _summary(n, out, by_kind, times, peaks, raw_errors, slow)
     res["outcomes"].setdefault("silent acceptance", 0)
     res["outcomes"].setdefault("other exception", 0)

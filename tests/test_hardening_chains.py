@@ -292,17 +292,24 @@ SAMPLE_CASES = ["iteration -1", "iteration past the end", "chain bit flip to NaN
                 "log_prob deleted", "truncated to half"]
 
 
-@pytest.mark.parametrize("name", SAMPLE_CASES)
-def test_sample_posterior_refuses_a_damaged_backend_before_any_work(model_chain, tiny_model,
-                                                                    tmp_path, monkeypatch,
-                                                                    name):
-    _, h5 = model_chain
+def _damaged_copy(h5, tmp_path, name):
+    """A copy of the chain file with corruption ``name`` applied (a NaN inside the stored steps
+    for the bit flip, so the refusal cannot come from the random offset missing them)."""
     path = tmp_path / "chain.h5"
     shutil.copyfile(h5, path)
     damage, _ = CORRUPTIONS[name]
     if name == "chain bit flip to NaN":
         damage = lambda p: flip_exponent(p, "mcmc/chain", (3, 5, 1))  # noqa: E731
     damage(path)
+    return path
+
+
+@pytest.mark.parametrize("name", SAMPLE_CASES)
+def test_sample_posterior_refuses_a_damaged_backend_before_any_work(model_chain, tiny_model,
+                                                                    tmp_path, monkeypatch,
+                                                                    name):
+    _, h5 = model_chain
+    path = _damaged_copy(h5, tmp_path, name)
     before = path.read_bytes()
 
     def no_target(*a, **k):
@@ -318,12 +325,7 @@ def test_sample_posterior_refuses_a_damaged_backend_before_any_work(model_chain,
 @pytest.mark.parametrize("name", SAMPLE_CASES)
 def test_cli_sample_refuses_a_damaged_backend_with_one_line(model_chain, tmp_path, name):
     model, h5 = model_chain
-    path = tmp_path / "chain.h5"
-    shutil.copyfile(h5, path)
-    damage, _ = CORRUPTIONS[name]
-    if name == "chain bit flip to NaN":
-        damage = lambda p: flip_exponent(p, "mcmc/chain", (3, 5, 1))  # noqa: E731
-    damage(path)
+    path = _damaged_copy(h5, tmp_path, name)
     before = sorted(p.name for p in tmp_path.iterdir()), path.read_bytes()
     err = io.StringIO()
     t0 = time.perf_counter()
