@@ -104,3 +104,38 @@ def test_vmapped_runs_equal_single_runs():
         single = run(x0[i], 200)
         np.testing.assert_allclose(np.asarray(batched.x[i]), np.asarray(single.x), rtol=1e-9)
         assert int(batched.nit[i]) == int(single.nit)
+
+
+def test_the_stall_criterion_is_relative_to_the_objective_over_a_window():
+    from bayesmotion.optim.minimize import stalled
+
+    assert stalled([5.0, 4.0], window=3) == (False, None)
+    met, change = stalled([1000.0, 999.0, 998.0, 997.99], window=2)
+    assert change == pytest.approx((999.0 - 997.99) / 997.99)
+    assert not met
+    met, change = stalled([1000.0, 999.0, 998.0, 997.99], window=2, rtol=2e-3)
+    assert met
+    # the magnitude is at least 1, so an objective near 0 does not inflate the change
+    assert stalled([1e-9, 0.0], window=1, rtol=2.0)[0]
+
+
+def test_map_optimize_stops_at_the_stall_test_and_says_so():
+    from bayesmotion.optim.minimize import map_optimize, stalled
+
+    def logp(p, jitter):  # 20-D Rosenbrock: many iterations from (-1.2, 1, ...)
+        x = p["x"]
+        return -jnp.sum(100.0 * (x[1:] - x[:-1] ** 2) ** 2 + (1.0 - x[:-1]) ** 2)
+
+    x0 = {"x": jnp.tile(jnp.array([-1.2, 1.0]), 10)}
+    _, full = map_optimize(logp, x0, max_iter=2000, rtol=0.0, progress=False)
+    _, early = map_optimize(logp, x0, max_iter=2000, rtol=0.5, window=5, progress=False)
+    assert full["iterations"] > 30 and full["converged"]
+    assert 6 <= early["iterations"] < full["iterations"]  # 6: the first with a window of 5
+    trace = early["trace"]  # it stopped at the first iteration that met the test
+    assert not any(stalled(trace[:k], 5, 0.5)[0] for k in range(len(trace)))
+    assert stalled(trace, 5, 0.5)[0]
+    assert early["converged"] and early["convergence"]["met"]
+    assert early["message"].startswith("CONVERGED: OBJECTIVE FELL BY LESS THAN 0.5")
+    assert early["convergence"]["relative_fall_last_window"] < 0.5
+    _, capped = map_optimize(logp, x0, max_iter=10, rtol=0.0, progress=False)
+    assert not capped["converged"] and capped["convergence"]["max_iter_reached"]

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 
 from bayesmotion.gp import kernels
 from bayesmotion.gp.densities import LOG_2PI
-from bayesmotion.model.layers import restart_log_prior
+from bayesmotion.model.layers import ar_mean, restart_log_prior
 from bayesmotion.model.params import STYLE_PREFIX, style_log_prior, style_to_simplex
 from bayesmotion.model.predict import (
     LayerFit,
@@ -160,7 +160,7 @@ def style_expansion(P: Predictor, params: dict, Ys, mask, fixed: dict, free: dic
                                                      list(P.dyn_style), S, P.alpha),
                    P.dyn, dyn_factors, free, fixed, B - o, P.level_vectors)
     base = kernels.dynamics_diag(list(lags), unit(dyn_factors, B - o), P.alpha)
-    dyn = _Expanded(I[o:], G, H, base, noise["I"], m[o:])
+    dyn = _Expanded(I[o:] - ar_mean(list(lags), P.ar), G, H, base, noise["I"], m[o:])
     return StyleExpansion(_bottom_term(P, X, Ys, m) + restart_log_prior(I[:o], init_var),
                           inter, dyn,
                           {f: P.level_vectors[f] for f in free})

@@ -35,7 +35,7 @@ from bayesmotion.evaluation.calibration import (
     tempered_hpd_levels,
     tempering_proposal,
 )
-from bayesmotion.model.params import STYLE_PREFIX
+from bayesmotion.model.params import AR_KEY, STYLE_PREFIX
 from bayesmotion.model.spec import HGPDM
 
 
@@ -44,7 +44,8 @@ def _fold_init(full, keep: list[int]) -> dict:
     rows = np.concatenate([np.arange(sl[r].start, sl[r].stop) for r in keep])
     # hyperparameters, and learned style vectors (the levels stay: datasets keep their level
     # lists when trials are left out)
-    init = {k: v for k, v in full.params.items() if k.startswith(("log_", STYLE_PREFIX))}
+    init = {k: v for k, v in full.params.items()
+            if k.startswith(("log_", STYLE_PREFIX)) or k == AR_KEY}
     init["X"] = np.asarray(full.params["X"])[:, rows]
     init["I"] = np.asarray(full.params["I"])[rows]
     return init

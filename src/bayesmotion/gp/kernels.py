@@ -7,7 +7,11 @@ Notation (code name <- paper):
     gamma = (gamma1, gamma2, gamma3)  bottom layer, eq. 2
     beta  = (beta1, beta2, beta3)     interaction layer
     alpha = (alpha_rbf, alpha_ls[lag 1..o], alpha_lin[lag 1..o], alpha_noise)  dynamics, eq. 10
-            (order o = 2: alpha1, alpha2, alpha3, alpha4, alpha5, alpha6 of the paper)
+            (order o = 2: alpha1, alpha2, alpha3, alpha4, alpha5, alpha6 of the paper), or
+            (alpha_rbf, alpha_ls[lag 1..o], alpha_noise) without the linear term, when the
+            dynamics' linear part is an explicit stable autoregression instead
+            (:func:`bayesmotion.model.layers.ar_coefficients`); the noise precision is last
+            either way (:func:`dynamics_noise_precision`)
     S     = per-frame style vectors, one (N, K_f) matrix per style factor (couple c, emotion e)
 """
 
@@ -60,11 +64,27 @@ def interaction_kernel(A, B, Sa, Sb, beta):
     return style_gram(Sa, Sb) * rbf(A, B, beta[0], beta[1])
 
 
+def has_linear_term(alpha, order: int) -> bool:
+    """Whether ``alpha`` carries the linear kernel's weights (2 + 2 o entries) or not (2 + o)."""
+    n = alpha.shape[0]
+    if n not in (2 + order, 2 + 2 * order):
+        raise ValueError(f"alpha has {n} entries; order {order} needs {2 + order} or "
+                         f"{2 + 2 * order}")
+    return n == 2 + 2 * order
+
+
+def dynamics_noise_precision(alpha):
+    """alpha_noise, the dynamics' white-noise precision: the last entry of ``alpha``."""
+    return alpha[-1]
+
+
 def dynamics_kernel(lags_a: Sequence[jnp.ndarray], lags_b: Sequence[jnp.ndarray], Sa, Sb, alpha):
     """Dynamics layer, eq. 10 without noise, for a GPDM of order o = len(lags_a).
 
     k = prod_f (s_f^T s_f') * [alpha_rbf exp(-sum_l alpha_ls[l]/2 |i_{t-l} - i'_{t-l}|^2)
                                + sum_l alpha_lin[l] i_{t-l}^T i'_{t-l}]
+
+    (the linear sum only when ``alpha`` carries its weights, :func:`has_linear_term`).
 
     Style is constant within a trial, so both lags of one input share one style vector; the
     factor therefore appears once (the paper's "style of both lags").
@@ -72,14 +92,16 @@ def dynamics_kernel(lags_a: Sequence[jnp.ndarray], lags_b: Sequence[jnp.ndarray]
     Args:
         lags_a: o arrays (N, Q): I_{t-1}, ..., I_{t-o} for each output frame t.
         lags_b: o arrays (M, Q).
-        alpha: (2 + 2 o,) positive parameters.
+        alpha: (2 + 2 o,) or (2 + o,) positive parameters.
     """
     o = len(lags_a)
+    linear = has_linear_term(alpha, o)
     log_rbf = 0.0
     lin = 0.0
     for l in range(o):
         log_rbf = log_rbf - 0.5 * alpha[1 + l] * sqdist(lags_a[l], lags_b[l])
-        lin = lin + alpha[1 + o + l] * (lags_a[l] @ lags_b[l].T)
+        if linear:
+            lin = lin + alpha[1 + o + l] * (lags_a[l] @ lags_b[l].T)
     return style_gram(Sa, Sb) * (alpha[0] * jnp.exp(log_rbf) + lin)
 
 
@@ -89,5 +111,7 @@ def dynamics_diag(lags: Sequence[jnp.ndarray], S, alpha):
     style = 1.0
     for s in S:
         style = style * jnp.sum(s * s, -1)
+    if not has_linear_term(alpha, o):
+        return style * alpha[0] * jnp.ones(lags[0].shape[0])
     lin = sum(alpha[1 + o + l] * jnp.sum(lags[l] ** 2, -1) for l in range(o))
     return style * (alpha[0] + lin)

@@ -16,9 +16,14 @@ def _dims(model) -> tuple[dict, dict]:
         "gamma_dim": ["gamma1_signal", "gamma2_inv_ls", "gamma3_noise_prec"],
         "beta_dim": ["beta1_signal", "beta2_inv_ls", "beta3_noise_prec"],
         "alpha_dim": (["alpha_rbf"] + [f"alpha_ls_lag{l + 1}" for l in range(o)]
-                      + [f"alpha_lin_lag{l + 1}" for l in range(o)] + ["alpha_noise_prec"]),
+                      + ([] if model.spec.stable_dynamics
+                         else [f"alpha_lin_lag{l + 1}" for l in range(o)])
+                      + ["alpha_noise_prec"]),
     }
     dims = {"gamma": ["gamma_dim"], "beta": ["beta_dim"], "alpha": ["alpha_dim"]}
+    if model.spec.stable_dynamics:
+        coords["ar_lag"] = [f"a_lag{l + 1}" for l in range(o)]
+        dims["ar"] = ["ar_lag"]
     for f in model.spec.factors:
         coords[f"{f}_level"] = list(model.levels[f])
         coords[f"{f}_label"] = list(model.levels[f])

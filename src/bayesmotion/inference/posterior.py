@@ -37,7 +37,7 @@ from bayesmotion.errors import BayesmotionError
 from bayesmotion.inference.diagnostics import arviz_without_numba, save_netcdf, to_inference_data
 from bayesmotion.inference.predictive import generate_posterior
 from bayesmotion.inference.target import Target
-from bayesmotion.model.params import STYLE_PREFIX, style_to_simplex
+from bayesmotion.model.params import AR_KEY, STYLE_PREFIX, ar_coefficients, style_to_simplex
 from bayesmotion.model.predict import condition
 
 
@@ -133,6 +133,8 @@ class Posterior:
 
 def _constrain(p: dict) -> dict:
     out = {k[4:]: jnp.exp(v) for k, v in p.items() if k.startswith("log_")}
+    if AR_KEY in p:
+        out["ar"] = ar_coefficients(p[AR_KEY])
     for k, v in p.items():
         if k.startswith(STYLE_PREFIX):
             out["style_" + k[len(STYLE_PREFIX):]] = style_to_simplex(v)  # (K, K)

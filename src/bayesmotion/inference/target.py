@@ -10,10 +10,10 @@ from jax.flatten_util import ravel_pytree
 
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.logpost import LAYERS
-from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style
+from bayesmotion.model.params import AR_KEY, STYLE_PREFIX, simplex_to_style
 from bayesmotion.optim.minimize import map_optimize
 
-SAMPLED_HYPER = ("log_gamma", "log_beta", "log_alpha")
+SAMPLED_HYPER = ("log_gamma", "log_beta", "log_alpha", AR_KEY)  # those the model has
 
 
 # With the latents fixed the posterior factorises: p(gamma | Y, X) p(beta, alpha, S | X, I).
@@ -28,7 +28,7 @@ def sampled_start(model) -> dict:
     """Initial sampled parameters: MAP hyperparameters, style vectors from the model (or each
     level's Dirichlet prior mean when the MAP kept them one-hot). Factors with a single level
     have nothing to sample and stay fixed."""
-    p = {k: np.asarray(model.params[k]) for k in SAMPLED_HYPER}
+    p = {k: np.asarray(model.params[k]) for k in SAMPLED_HYPER if k in model.params}
     conc = model.log_posterior_fn.style_prior.concentration
     for f in model.spec.factors:
         key = STYLE_PREFIX + f

@@ -10,17 +10,18 @@ from bayesmotion.data.motion import MotionDataset
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.data import ModelData, fit_codecs, prepare_data
 from bayesmotion.model.fitted import FittedHGPDM, trial_records
+from bayesmotion.model.layers import DynamicsIndex
 from bayesmotion.model.logpost import LogPosterior
-from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style
-from bayesmotion.optim.minimize import map_optimize
+from bayesmotion.model.params import AR_KEY, STYLE_PREFIX, simplex_to_style
+from bayesmotion.optim.minimize import CONVERGENCE_RTOL, map_optimize
 
 if TYPE_CHECKING:
     from bayesmotion.model.spec import HGPDM
 
 
 def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tuple = False,
-              max_iter: int = 1000, gtol: float = 1e-5, seed: int = 0,
-              progress: bool = True, init: dict | None = None) -> FittedHGPDM:
+              max_iter: int = 1000, gtol: float = 1e-5, rtol: float = CONVERGENCE_RTOL,
+              seed: int = 0, progress: bool = True, init: dict | None = None) -> FittedHGPDM:
     """Fit latents X, I and hyperparameters (gamma, beta, alpha) by MAP.
 
     Args:
@@ -32,8 +33,12 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tup
             Wang et al.'s learned content vectors, which let a held-out combination of content
             and emotion borrow from the other contents); otherwise they stay one-hot. Style
             vectors given in ``init`` are optimised too.
-        max_iter: L-BFGS iterations.
+        max_iter: the most L-BFGS iterations.
         gtol: projected-gradient tolerance for convergence.
+        rtol: the stall test: converged when the objective fell by less than ``rtol`` of its
+            magnitude over the last 100 iterations
+            (:func:`bayesmotion.optim.minimize.stalled`; 0 turns it off). The criterion and
+            whether it was met are in ``diagnostics["convergence"]``.
         seed: seed of the initial perturbation (the fit is deterministic for a seed).
         progress: show a progress bar with the objective.
         init: starting parameters (e.g. a previous fit's, for warm-started refits); must have
@@ -61,8 +66,8 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tup
                 raise BayesmotionError(f"init[{k!r}] has shape {np.shape(v)}, this dataset "
                                        f"needs {np.shape(params0[k])}")
         params0.update({k: np.asarray(v) for k, v in init.items()})
-    params, diag = map_optimize(logp, params0, max_iter=max_iter, gtol=gtol, progress=progress,
-                                desc="MAP fit")
+    params, diag = map_optimize(logp, params0, max_iter=max_iter, gtol=gtol, rtol=rtol,
+                                progress=progress, desc="MAP fit")
     return FittedHGPDM(spec=spec, params=params, codecs=codecs, levels=dict(dataset.levels),
                        data=data, trials=trial_records(dataset, codecs, spec.root_mode),
                        fps=dataset.fps, diagnostics=diag)
@@ -95,13 +100,29 @@ def init_params(spec: HGPDM, data: ModelData, seed: int = 0, jitter_scale: float
     var_z = float(np.mean(Z**2))
     var_i = float(np.mean(I**2))
     o = spec.order
-    return {
+    lin = [] if spec.stable_dynamics else [0.5 / o] * o
+    params = {
         "X": X,
         "I": I,
         "log_gamma": np.log([var_y, 1.0, 100.0 / var_y]),
         "log_beta": np.log([var_z, 1.0, 100.0 / var_z]),
-        "log_alpha": np.log([var_i] + [1.0] * o + [0.5 / o] * o + [100.0 / var_i]),
+        "log_alpha": np.log([var_i] + [1.0] * o + lin + [100.0 / var_i]),
     }
+    if spec.stable_dynamics:
+        params[AR_KEY] = initial_ar(I, DynamicsIndex(data.lengths, o))
+    return params
+
+
+def initial_ar(I: np.ndarray, index: DynamicsIndex, max_pacf: float = 0.95) -> np.ndarray:
+    """Unconstrained start of the explicit autoregression: the least-squares scalar AR(o) of
+    the initial latents pooled over trials and dimensions, its partial autocorrelations
+    clipped to +-``max_pacf`` (inside the stationary region, away from its edge)."""
+    lags = np.stack([I[ix].ravel() for ix in index.lag], axis=1)  # (n * Q, o)
+    a = np.linalg.lstsq(lags, I[index.out].ravel(), rcond=None)[0]
+    phi = a.copy() if a.size == 1 else np.array([a[0] / (1.0 - a[1]) if a[1] != 1 else 0.0,
+                                                  a[1]])
+    phi = np.clip(np.nan_to_num(phi), -max_pacf, max_pacf)
+    return np.arctanh(phi)
 
 
 def _free_factors(optimize_style, factors) -> tuple:

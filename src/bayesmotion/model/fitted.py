@@ -15,7 +15,7 @@ from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.archive import save_model
 from bayesmotion.model.data import ModelData, encode_trial
 from bayesmotion.model.generate import generate
-from bayesmotion.model.logpost import LogPosterior, constrained, trial_styles
+from bayesmotion.model.logpost import LogPosterior, ar_of, constrained, trial_styles
 from bayesmotion.model.predict import condition
 
 if TYPE_CHECKING:
@@ -106,8 +106,13 @@ class FittedHGPDM:
 
     @property
     def hyperparameters(self) -> dict[str, np.ndarray]:
-        """gamma, beta, alpha (constrained, positive)."""
-        return {k: np.asarray(v) for k, v in constrained(self.params).items()}
+        """gamma, beta, alpha (constrained, positive) and, with the default stable dynamics,
+        ``ar``: the autoregression's coefficients (a_1, .., a_o)."""
+        out = {k: np.asarray(v) for k, v in constrained(self.params).items()}
+        ar = ar_of(self.params)
+        if ar is not None:
+            out["ar"] = np.asarray(ar)
+        return out
 
     def styles(self) -> dict[str, np.ndarray]:
         """factor -> (R, K_f) style vector of every training trial (its level's vector)."""

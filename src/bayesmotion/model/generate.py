@@ -308,6 +308,28 @@ def _start_trial(model, styles, start) -> int:
     return 0
 
 
+DIVERGED = 100.0
+"""A rollout whose latents leave the training latents' range by this factor has diverged."""
+
+
+def check_bounded(I: np.ndarray, I_train: np.ndarray, dynamics_linear: str) -> None:
+    """Raise BayesmotionError when a latent rollout is not finite or has left the training
+    latents' range by more than ``DIVERGED`` times, instead of decoding it.
+
+    With the default stable dynamics a mean rollout is bounded by construction (a stationary
+    autoregression driven by the bounded RBF mean); with the paper's linear kernel term
+    (``dynamics_linear="kernel"``) nothing bounds it, and rollouts of real walks reach 1e15
+    times the training range within 200 frames."""
+    scale = float(np.max(np.abs(I_train))) or 1.0
+    peak = float(np.max(np.abs(I))) if np.all(np.isfinite(I)) else np.inf
+    if peak > DIVERGED * scale:
+        hint = (" (its dynamics has the paper's linear kernel term, which nothing keeps "
+                "stable; refit with HGPDM(dynamics_linear='stable'))"
+                if dynamics_linear == "kernel" else "")
+        raise BayesmotionError(f"the latent rollout diverged: |I| reached {peak:.3g}, "
+                               f"{peak / scale:.3g} times the training latents' range{hint}")
+
+
 def check_decodes(model) -> None:
     """Raise BayesmotionError, naming why, when the model's pose space cannot be decoded to
     motion (``HGPDM(pose_space="affective")``)."""
@@ -364,6 +386,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
     key = jax.random.PRNGKey(seed)
     I_gen, I_var = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n_frames - o, False)
     I = np.concatenate([I0, np.asarray(I_gen)])
+    check_bounded(I, np.asarray(model.params["I"]), model.spec.dynamics_linear)
     I_var = np.concatenate([np.zeros(o), np.asarray(I_var)])[:, None] * np.ones_like(I)
     mean = _map_and_decode(model, P, jnp.asarray(I), int_s, r)
     samples = sample_var = None
@@ -373,6 +396,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
                                                    True)[0])
         I_s = np.concatenate([np.broadcast_to(I0, (n_samples, o, I0.shape[1])),
                               np.asarray(roll(keys))], axis=1)
+        check_bounded(I_s, np.asarray(model.params["I"]), model.spec.dynamics_linear)
         samples = {"I": I_s, **_map_and_decode_samples(model, P, jnp.asarray(I_s), int_s, r)}
         sample_var = {k: v.var(0) for k, v in samples.items()}
     return Rollout(fps=model.fps, styles=coords,

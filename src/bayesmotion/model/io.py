@@ -20,13 +20,14 @@ from bayesmotion.errors import BayesmotionError, ModelFileError
 from bayesmotion.model.archive import open_archive
 from bayesmotion.model.data import ModelData
 from bayesmotion.model.fitted import FittedHGPDM, TrialRecord
-from bayesmotion.model.params import STYLE_PREFIX
+from bayesmotion.model.params import AR_KEY, STYLE_PREFIX
 from bayesmotion.model.spec import HGPDM
 
 MAX_TRAINING_FRAMES = 50_000
 """Most training frames (N) a model file may hold: conditioning a model factors N x N Gram
 matrices (20 GB at this limit)."""
 _MAX_LOG = 100.0
+_MAX_ATANH = 10.0  # tanh(10) = 1 - 4e-9: still a stationary autoregression
 """Largest magnitude of a stored log-hyperparameter: its exponential stays within 1e+-43."""
 # the metadata's parse and the model's construction raise these on content of the wrong type
 _CONTENT_ERRORS = (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError,
@@ -194,7 +195,10 @@ def _check_shapes(model, path):
     N, R, A = int(lengths.sum()), lengths.size, len(model.codecs)
     o = spec.order
     expected = {"X": (A, N, spec.latent_dim), "I": (N, spec.interaction_dim),
-                "log_gamma": (3,), "log_beta": (3,), "log_alpha": (2 + 2 * o,)}
+                "log_gamma": (3,), "log_beta": (3,),
+                "log_alpha": (2 + o,) if spec.stable_dynamics else (2 + 2 * o,)}
+    if spec.stable_dynamics:
+        expected[AR_KEY] = (o,)
     if set(data.onehot) != set(spec.factors) or not set(spec.factors) <= set(model.levels):
         bad(f"labels of factors {sorted(data.onehot)} (levels of {sorted(model.levels)}) do not "
             f"match the specification's factors {sorted(spec.factors)}")
@@ -220,6 +224,9 @@ def _check_shapes(model, path):
             bad(f"parameter {k} is not a finite float array")
         if k.startswith("log_") and np.any(np.abs(v) > _MAX_LOG):
             bad(f"parameter {k} has values beyond +-{_MAX_LOG:g}: its exponential overflows")
+        if k == AR_KEY and np.any(np.abs(v) > _MAX_ATANH):
+            bad(f"parameter {k} has values beyond +-{_MAX_ATANH:g}: the autoregression's "
+                f"partial autocorrelations round to +-1, a unit root")
     for a, (Y, codec) in enumerate(zip(data.Y, model.codecs, strict=True)):
         if Y.shape != (N, codec.dim) or Y.dtype != np.float64:
             bad(f"training poses of actor {a} have shape {Y.shape}, expected {(N, codec.dim)}")

@@ -19,6 +19,12 @@ def restart_log_prior(first, init_var):
     return -0.5 * jnp.sum(first**2) / init_var - 0.5 * first.size * (LOG_2PI + jnp.log(init_var))
 
 
+def ar_mean(lags, a):
+    """sum_l a_l lags[l]: the explicit linear part of the dynamics' mean. lags: o arrays
+    (..., Q) (I_{t-1} first), a: (o,)."""
+    return sum(a[l] * lags[l] for l in range(len(lags)))
+
+
 def style_gplvm_loglik(I, Z, S, beta, jitter=0.0):
     """Interaction layer: log p(Z | I, beta, S) with the multifactor kernel.
 
@@ -60,19 +66,28 @@ class DynamicsIndex:
         self.trial_of_frame = np.repeat(np.arange(len(lengths)), lengths)
 
 
-def gpdm_loglik(I, S, alpha, index: DynamicsIndex, jitter=0.0, prior_var=1.0):
+def dynamics_targets(I, index: DynamicsIndex, ar=None):
+    """(lags, outputs) of the dynamics GP: the outputs less the explicit autoregressive mean
+    sum_l a_l i_{t-l} when ``ar`` (o,) is given (the GP then models what the stable linear
+    part does not explain)."""
+    lags, out = dynamics_io(I, index)
+    return lags, (out if ar is None else out - ar_mean(lags, ar))
+
+
+def gpdm_loglik(I, S, alpha, index: DynamicsIndex, jitter=0.0, prior_var=1.0, ar=None):
     """Dynamics layer: log p(I | alpha, S) for a GPDM of order 1 or 2 over many trials.
 
-    log p = log N(I_out | 0, K_I) (columns independent, eq. 11)
+    log p = log N(I_out - sum_l a_l I_{out-l} | 0, K_I) (columns independent, eq. 11)
             + sum over each trial's first o frames of log N(i | 0, prior_var * I).
 
-    I: (N, Q) latents of all trials stacked; S: per-factor (N, K_f) per-frame style.
+    I: (N, Q) latents of all trials stacked; S: per-factor (N, K_f) per-frame style; ar: (o,)
+    coefficients of the explicit stable linear mean, or None (the paper's zero mean, with the
+    linear part in the kernel).
     """
-    lags, out = dynamics_io(I, index)
+    lags, out = dynamics_targets(I, index, ar)
     S_out = [s[index.out] for s in S]
-    o = index.order
     K = kernels.dynamics_kernel(lags, lags, S_out, S_out, alpha)
-    K = K + jnp.eye(out.shape[0]) / alpha[1 + 2 * o]
+    K = K + jnp.eye(out.shape[0]) / kernels.dynamics_noise_precision(alpha)
     ll = gaussian_loglik(K, out, jitter)
     return ll + restart_log_prior(I[index.first], prior_var)
 
@@ -84,15 +99,15 @@ def blocked_style_gplvm_loglik(I, Z, beta, blocks: Blocks, jitter=0.0):
 
 
 def blocked_gpdm_loglik(I, alpha, index: DynamicsIndex, blocks: Blocks, jitter=0.0,
-                        prior_var=1.0):
+                        prior_var=1.0, ar=None):
     """Dynamics layer for one-hot styles (blocks group the *output* rows by style cell)."""
-    lags, out = dynamics_io(I, index)
-    o = index.order
+    lags, out = dynamics_targets(I, index, ar)
     ones = jnp.ones((out.shape[0], 1))
 
     def K_rows(ix):
         la = [l[ix] for l in lags]
         return kernels.dynamics_kernel(la, la, [ones[ix]], [ones[ix]], alpha)
 
-    ll = blocked_gaussian_loglik(K_rows, out, 1.0 / alpha[1 + 2 * o], blocks, jitter)
+    ll = blocked_gaussian_loglik(K_rows, out, 1.0 / kernels.dynamics_noise_precision(alpha),
+                                 blocks, jitter)
     return ll + restart_log_prior(I[index.first], prior_var)

@@ -4,14 +4,16 @@ Layers (paper symbols -> code):
 
 * bottom: ``Y_a ~ GP(X_a)`` for each actor a with one shared ``gamma`` (eq. 1-5);
 * interaction: ``[X_1, X_2] ~ GP(I)`` with the multifactor style kernel (``beta``, style ``S``);
-* dynamics: second-order (or first-order) GPDM on ``I`` with linear + RBF kernel times the style
-  factors (``alpha``, eq. 9-11); the chain restarts at each trial.
+* dynamics: second-order (or first-order) GPDM on ``I`` with an RBF kernel times the style
+  factors (``alpha``, eq. 9-11) around an explicit stationary autoregressive mean
+  ``sum_l a_l i_{t-l}`` (``atanh_pacf``; or, with ``dynamics_linear="kernel"``, the paper's
+  linear kernel term and zero mean); the chain restarts at each trial.
 
 The joint negative log-posterior (eq. 12) is
 
     -log p = -sum_a log N(Y_a | 0, K_Y(X_a))          (bottom, eq. 1-3, per column)
              -log N([X_1 X_2] | 0, K_X(I, S))         (interaction)
-             -log N(I_out | 0, K_I(I_in, S))          (dynamics, eq. 11)
+             -log N(I_out - sum_l a_l I_out-l | 0, K_I(I_in, S))   (dynamics, eq. 11)
              -sum_trials log N(I_first | 0, init_var) (restart prior, eq. 9)
              -log p(gamma, beta, alpha) - log p(S)    (priors, see bayesmotion.model.params)
 
@@ -30,8 +32,10 @@ from bayesmotion.gp import densities
 from bayesmotion.model import layers
 from bayesmotion.model.data import ModelData
 from bayesmotion.model.params import (
+    AR_KEY,
     STYLE_PREFIX,
     StylePrior,
+    ar_coefficients,
     log_prior_hyper,
     log_prior_style,
     style_to_simplex,
@@ -50,6 +54,12 @@ def trial_styles(params: dict, data: ModelData) -> dict[str, jnp.ndarray]:
         h = jnp.asarray(h)
         out[f] = h @ style_to_simplex(params[key]) if key in params else h
     return out
+
+
+def ar_of(params: dict):
+    """The explicit autoregression's coefficients (o,), or None when the model has the paper's
+    linear kernel term instead (no ``atanh_pacf`` parameter)."""
+    return ar_coefficients(params[AR_KEY]) if AR_KEY in params else None
 
 
 def constrained(params: dict) -> dict:
@@ -130,10 +140,12 @@ class LogPosterior:
 
     def _dynamics(self, params, I, alpha, jitter):
         fd, v0 = self.spec.dynamics_factors, self.spec.priors.init_var
+        ar = ar_of(params)
         if self.dense or self.dyn_blocks is None or not self._fixed(params, fd):
             return layers.gpdm_loglik(I, self.frame_styles(params, fd), alpha, self.index,
-                                      jitter, v0)
-        return layers.blocked_gpdm_loglik(I, alpha, self.index, self.dyn_blocks, jitter, v0)
+                                      jitter, v0, ar)
+        return layers.blocked_gpdm_loglik(I, alpha, self.index, self.dyn_blocks, jitter, v0,
+                                          ar)
 
     def __call__(self, params: dict, jitter=0.0, which=LAYERS) -> jnp.ndarray:
         t = self.layer_terms(params, jitter, which)

@@ -9,7 +9,11 @@ X             (A, N, Q_X)         identity                  hierarchy: p([X1 X2]
 I             (N, Q_I)            identity                  hierarchy: p(I | alpha, S), eq. 9/11
 log_gamma     (3,)                gamma = exp(.)            Normal(loc, scale) on log gamma
 log_beta      (3,)                beta = exp(.)             Normal(loc, scale) on log beta
-log_alpha     (2 + 2 o,)          alpha = exp(.)            Normal(loc, scale) on log alpha
+log_alpha     (2 + o,)            alpha = exp(.)            Normal(loc, scale) on log alpha
+              (2 + 2 o,) with the paper's linear kernel term (``dynamics_linear="kernel"``)
+atanh_pacf    (o,)                AR coefficients           partial autocorrelations tanh(.)
+                                  (:func:`ar_coefficients`) each Uniform(-1, 1)
+                                  (only with ``dynamics_linear="stable"``, the default)
 style:<f>     (K_f, K_f - 1)      simplex (stick-breaking)  Dirichlet(1 + kappa * onehot(level))
 ============  ==================  ========================  =====================================
 
@@ -50,7 +54,8 @@ class Priors:
         gamma_loc, beta_loc: prior medians (log space is centred on log of these) of
             (signal variance, inverse squared lengthscale, noise precision).
         alpha_rbf, alpha_ls, alpha_lin, alpha_noise: prior medians of the dynamics kernel's
-            parameters (the ls/lin medians apply to every lag).
+            parameters (the ls/lin medians apply to every lag; alpha_lin only with the
+            paper's linear kernel term, ``HGPDM(dynamics_linear="kernel")``).
         style_kappa: Dirichlet concentration of each level's style vector around its own
             vertex: the vector of level k has prior Dirichlet(1 + kappa * onehot(k)).
         init_var: variance of the isotropic Gaussian prior of each trial's first o frames of I.
@@ -85,9 +90,10 @@ class Priors:
             raise BayesmotionError(f"Priors.style_kappa must be a number >= 0, got "
                                    f"{self.style_kappa!r}")
 
-    def alpha_loc(self, order: int) -> np.ndarray:
-        return np.array([self.alpha_rbf] + [self.alpha_ls] * order + [self.alpha_lin] * order
-                        + [self.alpha_noise])
+    def alpha_loc(self, order: int, linear: bool = True) -> np.ndarray:
+        """Prior medians of alpha, with the linear kernel's weights (``linear``) or without."""
+        lin = [self.alpha_lin] * order if linear else []
+        return np.array([self.alpha_rbf] + [self.alpha_ls] * order + lin + [self.alpha_noise])
 
     def to_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
@@ -105,9 +111,46 @@ def _numeric(v) -> bool:
     return not isinstance(v, str | bytes | bool)
 
 
-def hyper_prior_locs(priors: Priors, order: int) -> dict[str, np.ndarray]:
+def hyper_prior_locs(priors: Priors, order: int, linear: bool = True) -> dict[str, np.ndarray]:
     return {"log_gamma": np.log(priors.gamma_loc), "log_beta": np.log(priors.beta_loc),
-            "log_alpha": np.log(priors.alpha_loc(order))}
+            "log_alpha": np.log(priors.alpha_loc(order, linear))}
+
+
+def ar_coefficients(u):
+    """Unconstrained (o,) -> the coefficients (a_1, .., a_o) of a stationary autoregression
+    i_t = sum_l a_l i_{t-l}.
+
+    Through the partial autocorrelations phi = tanh(u) in (-1, 1) (Barndorff-Nielsen and
+    Schou 1973; Monahan 1984): order 1, a_1 = phi_1; order 2, a_1 = phi_1 (1 - phi_2),
+    a_2 = phi_2. This maps R^o onto exactly the stationary region (every root of
+    1 - sum_l a_l z^l outside the unit circle; for order 2 the triangle |a_2| < 1,
+    a_2 +- a_1 < 1), so an explosive linear part cannot be represented at any parameter value.
+    """
+    phi = jnp.tanh(jnp.asarray(u))
+    if phi.shape[0] == 1:
+        return phi
+    if phi.shape[0] == 2:
+        return jnp.stack([phi[0] * (1.0 - phi[1]), phi[1]])
+    raise ValueError(f"autoregression order must be 1 or 2, got {phi.shape[0]}")
+
+
+def ar_pacf(a) -> np.ndarray:
+    """Inverse of :func:`ar_coefficients` on the partial autocorrelations: (a_1, .., a_o) ->
+    phi. Raises ValueError outside the stationary region."""
+    a = np.asarray(a, dtype=np.float64)
+    phi = a.copy() if a.size == 1 else np.array([a[0] / (1.0 - a[1]), a[1]])
+    if not np.all(np.abs(phi) < 1.0):
+        raise ValueError(f"autoregression coefficients {a.tolist()} are not stationary")
+    return phi
+
+
+def ar_log_prior(u):
+    """log density of u when every partial autocorrelation tanh(u_l) is Uniform(-1, 1), i.e.
+    uniform over the stationary region in partial-autocorrelation coordinates (Jones 1987):
+    sum_l log(1 - tanh(u_l)^2) - o log 2, written stably."""
+    u = jnp.asarray(u)
+    return jnp.sum(2.0 * (jnp.log(2.0) - jnp.abs(u) - jnp.log1p(jnp.exp(-2.0 * jnp.abs(u))))
+                   - jnp.log(2.0))
 
 
 def style_to_simplex(u: jnp.ndarray) -> jnp.ndarray:
@@ -141,13 +184,21 @@ class StylePrior:
                     for f, h in onehots.items()})
 
 
+AR_KEY = "atanh_pacf"
+
+
 def log_prior_hyper(params: dict, priors: Priors, order: int) -> jnp.ndarray:
-    """sum of Normal(log theta | log median, log_scale) over gamma, beta, alpha."""
-    locs = hyper_prior_locs(priors, order)
+    """sum of Normal(log theta | log median, log_scale) over gamma, beta, alpha, and the
+    autoregression's uniform partial-autocorrelation prior (:func:`ar_log_prior`) when the
+    dynamics has an explicit stable linear part."""
+    linear = AR_KEY not in params
+    locs = hyper_prior_locs(priors, order, linear)
     lp = 0.0
     for key, loc in locs.items():
         if key in params:
             lp = lp + jnp.sum(dist.Normal(loc, priors.log_scale).log_prob(params[key]))
+    if not linear:
+        lp = lp + ar_log_prior(params[AR_KEY])
     return lp
 
 

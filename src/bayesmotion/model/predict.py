@@ -21,7 +21,7 @@ from jax.scipy.linalg import cho_solve
 from bayesmotion.gp import densities, kernels
 from bayesmotion.gp.linalg import triangular_inverse
 from bayesmotion.model import layers
-from bayesmotion.model.logpost import constrained, trial_styles
+from bayesmotion.model.logpost import ar_of, constrained, trial_styles
 from bayesmotion.model.params import STYLE_PREFIX, style_to_simplex
 
 
@@ -62,7 +62,10 @@ class Predictor(NamedTuple):
 
     Attributes:
         dyn_lags: (o, M, Q_I) training inputs of the dynamics GP; dyn_style: per dynamics factor
-            (M, K_f) styles of its outputs; dyn: LayerFit; alpha: (2 + 2o,).
+            (M, K_f) styles of its outputs; dyn: LayerFit (its weights those of the outputs
+            less the autoregressive mean); alpha: (2 + o,) or (2 + 2o,) with the linear kernel
+            term; ar: (o,) coefficients of the explicit stable autoregressive mean (zeros for
+            a model with the paper's linear kernel term instead).
         I: (N, Q_I) interaction inputs; int_style: per interaction factor (N, K_f); inter:
             LayerFit; beta: (3,).
         X: (A, N, Q_X) bottom inputs; bottom_Linv: per actor, the inverse Cholesky factor
@@ -78,6 +81,7 @@ class Predictor(NamedTuple):
     dyn_style: tuple
     dyn: LayerFit
     alpha: jnp.ndarray
+    ar: jnp.ndarray
     I: jnp.ndarray
     int_style: tuple
     inter: LayerFit
@@ -197,16 +201,19 @@ def _condition(spec, data, params, jitter, blocked=True) -> Predictor:
     X, I = params["X"], params["I"]
     o = spec.order
     # dynamics
-    lags, out = layers.dynamics_io(I, index)
+    ar = ar_of(params)
+    lags, out = layers.dynamics_targets(I, index, ar)
+    ar = jnp.zeros(o) if ar is None else ar
+    noise_prec = kernels.dynamics_noise_precision(h["alpha"])
     dyn_style = tuple(S[f][tof][index.out] for f in spec.dynamics_factors)
     cells = _style_blocks(spec.dynamics_factors, params, data, tof[index.out]) if blocked else None
     if cells is None:
         Kd = kernels.dynamics_kernel(lags, lags, dyn_style, dyn_style, h["alpha"])
-        dyn = _fit_layer(Kd + jnp.eye(out.shape[0]) / h["alpha"][1 + 2 * o], out, jitter)
+        dyn = _fit_layer(Kd + jnp.eye(out.shape[0]) / noise_prec, out, jitter)
     else:  # within a cell the style factor is exactly 1
         dyn = _fit_blocked(lambda ix: kernels.dynamics_kernel(
             [l[ix] for l in lags], [l[ix] for l in lags], [], [], h["alpha"]),
-            1.0 / h["alpha"][1 + 2 * o], out, cells, jitter)
+            1.0 / noise_prec, out, cells, jitter)
     # interaction
     int_style = tuple(S[f][tof] for f in spec.interaction_factors)
     Z = jnp.concatenate(list(X), axis=1)
@@ -226,8 +233,8 @@ def _condition(spec, data, params, jitter, blocked=True) -> Predictor:
         As.append(f.A)
     vectors = {f: style_to_simplex(params[STYLE_PREFIX + f]) if STYLE_PREFIX + f in params
                else jnp.eye(data.onehot[f].shape[1]) for f in spec.factors}
-    return Predictor(jnp.stack(lags), dyn_style, dyn, h["alpha"], I, int_style, inter, h["beta"],
-                     X, tuple(Ls), tuple(As), h["gamma"], vectors)
+    return Predictor(jnp.stack(lags), dyn_style, dyn, h["alpha"], ar, I, int_style, inter,
+                     h["beta"], X, tuple(Ls), tuple(As), h["gamma"], vectors)
 
 
 def restrict_to_styles(P: Predictor, dyn_style_new, int_style_new) -> Predictor:
@@ -291,12 +298,14 @@ def predict_dynamics(P: Predictor, lags_new, style_new):
         mean (B, Q_I), latent-function variance (B,) (add 1/alpha_noise for a noisy step).
     """
     kxx = kernels.dynamics_diag(list(lags_new), list(style_new), P.alpha)
-    return _mean_var(_dynamics_cross(P, lags_new, style_new), kxx, P.dyn)
+    mean, var = _mean_var(_dynamics_cross(P, lags_new, style_new), kxx, P.dyn)
+    return mean + layers.ar_mean(lags_new, P.ar), var
 
 
 def predict_dynamics_mean(P: Predictor, lags_new, style_new):
     """The mean of :func:`predict_dynamics` alone, O(M) per input (no O(M^2) variance)."""
-    return _dynamics_cross(P, lags_new, style_new).T @ P.dyn.A
+    return (_dynamics_cross(P, lags_new, style_new).T @ P.dyn.A
+            + layers.ar_mean(lags_new, P.ar))
 
 
 def dynamics_mean_stepper(P: Predictor, styles):
@@ -311,13 +320,15 @@ def dynamics_mean_stepper(P: Predictor, styles):
     U, alpha = P.dyn_lags, P.alpha  # (o, M, Q)
     o = U.shape[0]
     norms = jnp.sum(U**2, -1)  # (o, M)
-    ls, lin = alpha[1:1 + o][:, None], alpha[1 + o:1 + 2 * o][:, None]
+    ls = alpha[1:1 + o][:, None]
+    lin = (alpha[1 + o:1 + 2 * o][:, None] if kernels.has_linear_term(alpha, o)
+           else jnp.zeros((o, 1)))
 
     def step(lags, style_row):
         D = jnp.einsum("lmq,lq->lm", U, lags)  # i_{t-l} . u_{t-l}
         sq = jnp.maximum(norms + jnp.sum(lags**2, -1)[:, None] - 2.0 * D, 0.0)
         k = style_row * (alpha[0] * jnp.exp(-0.5 * jnp.sum(ls * sq, 0)) + jnp.sum(lin * D, 0))
-        return k @ P.dyn.A
+        return k @ P.dyn.A + P.ar @ lags
 
     return step, kernels.style_gram(list(styles), list(P.dyn_style))
 
@@ -358,8 +369,8 @@ def predict_bottom_mean(P: Predictor, a: int, X_new):
 
 
 def noise_variances(P: Predictor) -> dict[str, jnp.ndarray]:
-    o = P.dyn_lags.shape[0]
-    return {"I": 1.0 / P.alpha[1 + 2 * o], "X": 1.0 / P.beta[2], "Y": 1.0 / P.gamma[2]}
+    return {"I": 1.0 / kernels.dynamics_noise_precision(P.alpha), "X": 1.0 / P.beta[2],
+            "Y": 1.0 / P.gamma[2]}
 
 
 def as_numpy(tree):

@@ -16,6 +16,7 @@ from bayesmotion.model.fitted import FittedHGPDM
 from bayesmotion.model.params import Priors
 
 DEFAULT_FACTORS = ("couple", "emotion")
+DYNAMICS_LINEAR = ("stable", "kernel")
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,16 @@ class HGPDM:
             and size, for inferring emotion across actions; such a model cannot generate
             motion; ``rest_frames`` and a ``scaling`` other than the default are refused:
             the features are standardised one by one).
+        dynamics_linear: the linear part of the dynamics' mean. "stable" (default): an
+            explicit autoregression i_t = sum_l a_l i_{t-l} + f(i_{t-1}, .., i_{t-o}) with the
+            coefficients a parameterised through partial autocorrelations so that only
+            stationary ones exist (:func:`bayesmotion.model.params.ar_coefficients`), f the
+            RBF-kernel GP; a mean rollout is then bounded at every parameter value (a stable
+            linear system driven by a bounded input) and far from the data decays towards
+            the origin instead of growing. "kernel": the paper's eq. 10, a linear kernel term
+            sum_l alpha_lin i_{t-l}^T i'_{t-l} added to the RBF, whose implied autoregression
+            nothing keeps stable (mean rollouts of real walks grow without bound within a
+            few hundred frames; docs/model.md).
         priors: prior settings.
     """
 
@@ -58,6 +69,7 @@ class HGPDM:
     rest_frames: bool = False
     canonical_side: bool = False
     pose_space: str = "angles"
+    dynamics_linear: str = "stable"
     priors: Priors = field(default_factory=Priors)
 
     def __post_init__(self):
@@ -66,6 +78,14 @@ class HGPDM:
             raise BayesmotionError(f"order must be 1 or 2, got {self.order}")
         if self.latent_dim < 1 or self.interaction_dim < 1:
             raise BayesmotionError("latent dimensions must be positive")
+        if self.dynamics_linear not in DYNAMICS_LINEAR:
+            raise BayesmotionError(f"dynamics_linear must be one of {DYNAMICS_LINEAR}, got "
+                                   f"{self.dynamics_linear!r}")
+
+    @property
+    def stable_dynamics(self) -> bool:
+        """Whether the dynamics' linear part is the explicit stationary autoregression."""
+        return self.dynamics_linear == "stable"
 
     def resolved(self, dataset: MotionDataset) -> HGPDM:
         """Fill defaults that depend on the data (factors, root mode)."""
@@ -95,7 +115,8 @@ class HGPDM:
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in ("latent_dim", "interaction_dim", "order",
                                              "root_mode", "scaling", "rest_frames",
-                                             "canonical_side", "pose_space")}
+                                             "canonical_side", "pose_space",
+                                             "dynamics_linear")}
         d["interaction_factors"] = list(self.interaction_factors or ())
         d["dynamics_factors"] = list(self.dynamics_factors or ())
         d["priors"] = self.priors.to_dict()
@@ -107,6 +128,7 @@ class HGPDM:
         d["priors"] = Priors.from_dict(d["priors"])
         d["interaction_factors"] = tuple(d["interaction_factors"])
         d["dynamics_factors"] = tuple(d["dynamics_factors"])
+        d.setdefault("dynamics_linear", "kernel")  # files written before the option existed
         return cls(**d)
 
     def fit(self, dataset: MotionDataset, **kwargs) -> FittedHGPDM:
