@@ -197,3 +197,21 @@ def test_a_periodic_model_keeps_moving_and_stays_bounded_for_5000_frames():
     late = np.abs(np.diff(model.generate(emotion="calm", n_frames=5000).angles[0, -500:, 6:],
                           axis=0)).mean()
     assert 0.5 < late / real < 2.0  # the calm walk still moves at about its own pace
+
+
+def test_the_dynamics_weight_scales_the_dynamics_term_alone(stable_tiny):
+    from dataclasses import replace
+
+    from bayesmotion.model.logpost import LogPosterior
+
+    params = {k: jnp.asarray(v) for k, v in stable_tiny.params.items()}
+    plain = LogPosterior(stable_tiny.spec, stable_tiny.data).layer_terms(params, 1e-8)
+    spec3 = replace(stable_tiny.spec, dynamics_weight=3.0)
+    heavy = LogPosterior(spec3, stable_tiny.data).layer_terms(params, 1e-8)
+    assert float(heavy["dynamics"]) == pytest.approx(3.0 * float(plain["dynamics"]), rel=1e-12)
+    for k in ("bottom", "interaction", "prior"):
+        assert float(heavy[k]) == float(plain[k])
+    assert HGPDM.from_dict(spec3.to_dict()).dynamics_weight == 3.0
+    for bad in (0.0, -1.0, float("nan"), "2", True):
+        with pytest.raises(BayesmotionError, match="dynamics_weight"):
+            HGPDM(dynamics_weight=bad)

@@ -168,7 +168,8 @@ class FittedHGPDM:
             couple: likewise for the couple factor (default: the first couple).
             n_frames: frames to generate, including the ``order`` start frames.
             n_samples: stochastic rollouts drawn from the dynamics' predictive distribution.
-            start: training-trial index (default: the first trial with the requested labels),
+            start: training-trial index (default: the longest trial with the requested labels
+                at the first frame, the first of equally long ones),
                 ``"prior"`` (zero latent state), or an (order, Q_I) latent array.
             seed: PRNG seed of the samples.
             **styles: values for any other style factor of the model.

@@ -302,10 +302,11 @@ def _start_trial(model, styles, start) -> int:
             raise BayesmotionError(f"start trial {start} out of range (0-{len(model.trials) - 1})")
         return int(start)
     target = {f: np.argmax(c[0]) for f, c in styles.items()}
-    for r, rec in enumerate(model.trials):
-        if all(model.levels[f].index(rec.labels[f]) == k for f, k in target.items()):
-            return r
-    return 0
+    match = [r for r, rec in enumerate(model.trials)
+             if all(model.levels[f].index(rec.labels[f]) == k for f, k in target.items())]
+    # the longest: a short clip (a 1-s recording) ends its trajectory early, and the rollout
+    # then continues from where no training trajectory goes on
+    return max(match, key=lambda r: model.trials[r].n_frames) if match else 0
 
 
 DIVERGED = 100.0

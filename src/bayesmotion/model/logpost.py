@@ -13,7 +13,8 @@ The joint negative log-posterior (eq. 12) is
 
     -log p = -sum_a log N(Y_a | 0, K_Y(X_a))          (bottom, eq. 1-3, per column)
              -log N([X_1 X_2] | 0, K_X(I, S))         (interaction)
-             -log N(I_out - sum_l a_l I_out-l | 0, K_I(I_in, S))   (dynamics, eq. 11)
+             -w log N(I_out - sum_l a_l I_out-l | 0, K_I(I_in, S))   (dynamics, eq. 11;
+                                                       w = HGPDM.dynamics_weight, 1 by default)
              -sum_trials log N(I_first | 0, init_var) (restart prior, eq. 9)
              -log p(gamma, beta, alpha) - log p(S)    (priors, see bayesmotion.model.params)
 
@@ -127,7 +128,8 @@ class LogPosterior:
             Z = jnp.concatenate([X[a] for a in range(A)], axis=1)
             terms["interaction"] = self._interaction(params, I, Z, h["beta"], jitter)
         if "dynamics" in which:
-            terms["dynamics"] = self._dynamics(params, I, h["alpha"], jitter)
+            terms["dynamics"] = (self.spec.dynamics_weight
+                                 * self._dynamics(params, I, h["alpha"], jitter))
         prior = (log_prior_hyper(params, self.spec.priors, self.spec.order)
                  + log_prior_style(params, self.style_prior))
         return {**terms, "prior": prior}

@@ -6,6 +6,7 @@ The model itself (layers, log-posterior of eq. 12) is in :mod:`bayesmotion.model
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 from bayesmotion.codecs.affective import check_pose_space
@@ -56,6 +57,12 @@ class HGPDM:
             sum_l alpha_lin i_{t-l}^T i'_{t-l} added to the RBF, whose implied autoregression
             nothing keeps stable (mean rollouts of real walks grow without bound within a
             few hundred frames; docs/model.md).
+        dynamics_weight: multiplies the dynamics layer's log-likelihood in the objective and
+            the posterior (Wang et al. 2008's balanced GPDM uses D / Q, the pose over the
+            latent dimension, so the dynamics is not swamped by the many pose dimensions);
+            1 (default) is the plain model. :func:`bayesmotion.infer_emotion` scores new clips
+            with the plain likelihood whatever the weight. Measured on the Bandai walks in
+            ``benchmarks/results/synthesis.json`` (``mechanisms``).
         priors: prior settings.
     """
 
@@ -70,6 +77,7 @@ class HGPDM:
     canonical_side: bool = False
     pose_space: str = "angles"
     dynamics_linear: str = "stable"
+    dynamics_weight: float = 1.0
     priors: Priors = field(default_factory=Priors)
 
     def __post_init__(self):
@@ -78,6 +86,10 @@ class HGPDM:
             raise BayesmotionError(f"order must be 1 or 2, got {self.order}")
         if self.latent_dim < 1 or self.interaction_dim < 1:
             raise BayesmotionError("latent dimensions must be positive")
+        w = self.dynamics_weight
+        if (isinstance(w, bool) or not isinstance(w, int | float)
+                or not (math.isfinite(w) and w > 0)):
+            raise BayesmotionError(f"dynamics_weight must be a positive number, got {w!r}")
         if self.dynamics_linear not in DYNAMICS_LINEAR:
             raise BayesmotionError(f"dynamics_linear must be one of {DYNAMICS_LINEAR}, got "
                                    f"{self.dynamics_linear!r}")
@@ -116,7 +128,7 @@ class HGPDM:
         d = {k: getattr(self, k) for k in ("latent_dim", "interaction_dim", "order",
                                              "root_mode", "scaling", "rest_frames",
                                              "canonical_side", "pose_space",
-                                             "dynamics_linear")}
+                                             "dynamics_linear", "dynamics_weight")}
         d["interaction_factors"] = list(self.interaction_factors or ())
         d["dynamics_factors"] = list(self.dynamics_factors or ())
         d["priors"] = self.priors.to_dict()
@@ -129,6 +141,7 @@ class HGPDM:
         d["interaction_factors"] = tuple(d["interaction_factors"])
         d["dynamics_factors"] = tuple(d["dynamics_factors"])
         d.setdefault("dynamics_linear", "kernel")  # files written before the option existed
+        d.setdefault("dynamics_weight", 1.0)
         return cls(**d)
 
     def fit(self, dataset: MotionDataset, **kwargs) -> FittedHGPDM:
