@@ -1,6 +1,11 @@
 """Full H-GPDM MAP fit time: the built-in handshakes and a Taubert-size problem.
 
-1. ``HGPDM().fit(load_handshakes())`` with default settings (target < 5 min).
+Each fit runs until the package's convergence test is met (the objective fell by less than
+1e-5 of its magnitude over 100 iterations, ``diagnostics["convergence"]``) or its time budget
+(the target) is spent (``fit(max_seconds=...)``); the target is met when the fit converged
+within the budget.
+
+1. ``HGPDM().fit(load_handshakes())`` with default settings (target: converged < 5 min).
 2. Taubert-size: 12 two-actor trials of 100 frames, 4 emotions x 3 repetitions of couple "c1",
    D = 159 per actor. Built from the shipped CMU handshake by ``load_handshakes(fps=...,
    window="shake")`` (the real recording with the emotion transforms) at the lowest frame rate
@@ -9,7 +14,7 @@
    actor's Y is padded to 159 with 63 synthetic channels (random mixtures of the real ones
    plus 5 % noise, same scale) and the model is fitted with the package's own MAP driver
    (``map_optimize`` on ``LogPosterior``, exactly what ``fit_hgpdm`` runs). Taubert et al.
-   (2012) report about 20 hours on a 2.7 GHz quad-core; target < 10 min.
+   (2012) report about 20 hours on a 2.7 GHz quad-core; target: converged < 10 min.
 
 ``--quick`` caps L-BFGS at a few iterations: the times are then per-iteration indications and
 the targets are not judged (the JSON says so).
@@ -38,7 +43,7 @@ TIMEOUT_S = {"builtin": 2 * TARGET_BUILTIN_S, "taubert": 2 * TARGET_TAUBERT_S}
 
 def _summary(diag: dict, wall: float) -> dict:
     keys = ("iterations", "evaluations", "objective", "initial_objective", "grad_norm",
-            "converged", "message", "jitter", "n_parameters", "seconds")
+            "converged", "convergence", "message", "jitter", "n_parameters", "seconds")
     out = {k: diag[k] for k in keys if k in diag}
     out["wall_s_including_data_prep"] = wall
     out["seconds_per_iteration"] = diag["seconds"] / max(diag["iterations"], 1)
@@ -81,7 +86,8 @@ def fit_builtin(max_iter: int, cost_path: Path) -> dict:
     write_json(cost_path, cost)  # kept by the parent if the fit then times out
     t0 = time.perf_counter()
     ds = load_handshakes()
-    fitted = HGPDM().fit(ds, max_iter=max_iter, progress=True)  # the bar shows how far it got
+    fitted = HGPDM().fit(ds, max_iter=max_iter, max_seconds=None if max_iter < 100
+                         else TARGET_BUILTIN_S, progress=True)  # the bar shows how far it got
     wall = time.perf_counter() - t0
     out = _summary(fitted.diagnostics, wall)
     out["evaluation_cost"] = cost
@@ -140,6 +146,7 @@ def fit_taubert(max_iter: int, cost_path: Path) -> dict:
     spec, ds, data, d_real = taubert_data()
     logp = LogPosterior(spec, data)
     params, diag = map_optimize(logp, init_params(spec, data, 0), max_iter=max_iter,
+                                max_seconds=None if max_iter < 100 else TARGET_TAUBERT_S,
                                 progress=True, desc="Taubert-size fit")
     wall = time.perf_counter() - t0
     out = _summary(diag, wall)
@@ -191,7 +198,7 @@ def progress_so_far(stderr) -> dict:
 def run(quick: bool) -> dict:
     from _common import headline
 
-    max_iter = 5 if quick else 1000
+    max_iter = 5 if quick else 100000  # full: until converged or out of time
     b = run_part("builtin", max_iter, None if quick else TIMEOUT_S["builtin"])
     t = run_part("taubert", max_iter, None if quick else TIMEOUT_S["taubert"])
     note = f"quick: max_iter={max_iter}, target not judged" if quick else ""
@@ -201,8 +208,8 @@ def run(quick: bool) -> dict:
             return headline(label, None, "s", f"< {target:g} s", False,
                             f"not finished after {r['timeout_s']:.0f} s (stopped at iteration "
                             f"{r.get('iterations_before_timeout')} of {max_iter})")
-        met = None if quick else r["seconds"] < target
-        return headline(label, r["seconds"], "s", f"< {target:g} s", met,
+        met = None if quick else bool(r["converged"] and r["seconds"] < target)
+        return headline(label, r["seconds"], "s", f"converged < {target:g} s", met,
                         note or f"{r['iterations']} it, converged={r['converged']}, "
                                 f"{r['message'][:40]}")
 
@@ -220,9 +227,11 @@ def run(quick: bool) -> dict:
     return {
         "settings": {"max_iter": max_iter, "quick": quick, "gtol": 1e-5, "seed": 0,
                      "timeouts_s": None if quick else TIMEOUT_S,
-                     "note": "quick mode caps L-BFGS iterations; full mode uses the default "
-                             "max_iter=1000" if quick else "default fit settings; each fit "
-                             "in a fresh process (compile time included)"},
+                     "max_seconds": None if quick else {"builtin": TARGET_BUILTIN_S,
+                                                        "taubert": TARGET_TAUBERT_S},
+                     "note": "quick mode caps L-BFGS iterations" if quick else
+                             "default fit settings, run until the convergence test or the "
+                             "time budget (the target) stops it; each fit in a fresh process"},
         "builtin": b,
         "taubert_size": t,
         "taubert_reference": "Taubert et al. 2012: about 20 h on a 2.7 GHz quad-core",

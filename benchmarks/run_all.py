@@ -45,6 +45,7 @@ BENCHMARKS = [
     "sampler_ess",
     "blas_threads",
     "study_interpolation",
+    "synthesis",
     "bandai_inference",
     "infer_speed",
     "handshake_inference",

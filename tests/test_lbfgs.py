@@ -139,3 +139,22 @@ def test_map_optimize_stops_at_the_stall_test_and_says_so():
     assert early["convergence"]["relative_fall_last_window"] < 0.5
     _, capped = map_optimize(logp, x0, max_iter=10, rtol=0.0, progress=False)
     assert not capped["converged"] and capped["convergence"]["max_iter_reached"]
+
+
+def test_map_optimize_stops_at_its_time_budget_and_does_not_call_that_converged():
+    import time
+
+    from bayesmotion.optim.minimize import map_optimize
+
+    def logp(p, jitter):
+        x = p["x"]
+        return -jnp.sum(100.0 * (x[1:] - x[:-1] ** 2) ** 2 + (1.0 - x[:-1]) ** 2)
+
+    x0 = {"x": jnp.tile(jnp.array([-1.2, 1.0]), 10)}
+    t0 = time.perf_counter()
+    _, d = map_optimize(logp, x0, max_iter=100000, rtol=0.0, gtol=0.0, ftol=0.0,
+                        max_seconds=0.0, progress=False)
+    assert d["iterations"] == 1  # the first iteration is past a zero budget
+    assert not d["converged"] and d["convergence"]["time_limit_reached"]
+    assert d["message"] == "STOP: TIME LIMIT OF 0 S REACHED"
+    assert time.perf_counter() - t0 < 60

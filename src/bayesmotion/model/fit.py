@@ -21,7 +21,8 @@ if TYPE_CHECKING:
 
 def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tuple = False,
               max_iter: int = 1000, gtol: float = 1e-5, rtol: float = CONVERGENCE_RTOL,
-              seed: int = 0, progress: bool = True, init: dict | None = None) -> FittedHGPDM:
+              max_seconds: float | None = None, seed: int = 0, progress: bool = True,
+              init: dict | None = None) -> FittedHGPDM:
     """Fit latents X, I and hyperparameters (gamma, beta, alpha) by MAP.
 
     Args:
@@ -39,6 +40,8 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tup
             magnitude over the last 100 iterations
             (:func:`bayesmotion.optim.minimize.stalled`; 0 turns it off). The criterion and
             whether it was met are in ``diagnostics["convergence"]``.
+        max_seconds: stop after the iteration that passes this many seconds of optimisation
+            (a time budget; the fit is then reported as not converged).
         seed: seed of the initial perturbation (the fit is deterministic for a seed).
         progress: show a progress bar with the objective.
         init: starting parameters (e.g. a previous fit's, for warm-started refits); must have
@@ -67,7 +70,7 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tup
                                        f"needs {np.shape(params0[k])}")
         params0.update({k: np.asarray(v) for k, v in init.items()})
     params, diag = map_optimize(logp, params0, max_iter=max_iter, gtol=gtol, rtol=rtol,
-                                progress=progress, desc="MAP fit")
+                                max_seconds=max_seconds, progress=progress, desc="MAP fit")
     return FittedHGPDM(spec=spec, params=params, codecs=codecs, levels=dict(dataset.levels),
                        data=data, trials=trial_records(dataset, codecs, spec.root_mode),
                        fps=dataset.fps, diagnostics=diag)

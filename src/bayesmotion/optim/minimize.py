@@ -31,7 +31,8 @@ def stalled(trace, window: int = CONVERGENCE_WINDOW, rtol: float = CONVERGENCE_R
 
 def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: float = 1e-5,
                  ftol: float = 1e-10, rtol: float = CONVERGENCE_RTOL,
-                 window: int = CONVERGENCE_WINDOW, progress: bool = True,
+                 window: int = CONVERGENCE_WINDOW, max_seconds: float | None = None,
+                 progress: bool = True,
                  desc: str = "MAP", value_and_grad: Callable | None = None
                  ) -> tuple[dict, dict]:
     """Maximise ``logp(params, jitter)`` over a parameter dict.
@@ -47,8 +48,9 @@ def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: f
     Stops at scipy's own tests (``gtol`` on the projected gradient, ``ftol`` on one step's
     relative decrease), at ``max_iter``, or when the objective has fallen by less than
     ``rtol`` of its magnitude over the last ``window`` iterations (:func:`stalled`; ``rtol=0``
-    turns that test off). A fit is ``converged`` when it stopped at one of these tests rather
-    than at ``max_iter``; on the 10,000-parameter latent models the gradient test is never met
+    turns that test off), or after the iteration that passes ``max_seconds`` of optimisation
+    (compilation excluded). A fit is ``converged`` when it stopped at one of the convergence
+    tests rather than at ``max_iter`` or ``max_seconds``; on the 10,000-parameter latent models the gradient test is never met
     (the gradient norm stays in the thousands while the objective changes by parts per
     million), so the stall test is the one that ends them.
 
@@ -89,9 +91,13 @@ def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: f
         bar.set_postfix(objective=f"{intermediate_result.fun:.4g}")
         if rtol > 0 and stalled(trace, window, rtol)[0]:
             raise StopIteration  # scipy ends the run and reports it
+        if max_seconds is not None and time.perf_counter() - state["t_opt"] > max_seconds:
+            state["out_of_time"] = True
+            raise StopIteration
 
     t0 = time.perf_counter()
     initial = float(vg(x0, JITTER_LADDER[0])[0])  # compiles the objective once, then reused
+    state["t_opt"] = time.perf_counter()
     res = scipy.optimize.minimize(fun, np.asarray(x0, dtype=np.float64), jac=True,
                                   method="L-BFGS-B", callback=callback,
                                   options={"maxiter": max_iter, "gtol": gtol, "ftol": ftol,
@@ -115,13 +121,16 @@ def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: f
         "grad_norm": float(np.linalg.norm(g)),
         "grad_max": float(np.max(np.abs(g))) if g.size else 0.0,
         "message": (f"CONVERGED: OBJECTIVE FELL BY LESS THAN {rtol:g} (RELATIVE) OVER "
-                    f"{window} ITERATIONS" if met else str(res.message)),
+                    f"{window} ITERATIONS" if met
+                    else f"STOP: TIME LIMIT OF {max_seconds:g} S REACHED"
+                    if state.get("out_of_time") else str(res.message)),
         "converged": converged,
         "convergence": {"criterion": f"scipy's gtol={gtol:g} / ftol={ftol:g}, or a relative "
                                      f"fall of the objective < {rtol:g} over {window} "
                                      f"iterations",
                         "met": converged, "relative_fall_last_window": change,
-                        "max_iter_reached": int(res.nit) >= max_iter and not converged},
+                        "max_iter_reached": int(res.nit) >= max_iter and not converged,
+                        "time_limit_reached": bool(state.get("out_of_time")) and not converged},
         "jitter": JITTER_LADDER[state["level"]],
         "jitter_events": state["events"],
         "seconds": seconds,

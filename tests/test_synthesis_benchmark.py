@@ -1,0 +1,57 @@
+"""Helpers of the synthesis 'Turing test' (benchmarks/synthesis.py), without fitting."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import synthesis  # noqa: E402
+
+
+def test_joint_speed_ignores_the_root_and_wraps_angles():
+    v = np.zeros((4, 9))
+    v[:, :6] = np.arange(4)[:, None] * 100.0  # the root moves and turns: not limb motion
+    v[:, 6] = [179.0, -179.0, -177.0, -175.0]  # crosses the +-180 seam: 2 degrees a frame
+    np.testing.assert_allclose(synthesis.joint_speed(v), [2.0 / 3] * 3)
+
+
+def test_each_judge_never_saw_its_clip():
+    rng = np.random.default_rng(0)
+    labels = ["a", "b"] * 10
+    X = rng.normal(size=(20, 3)) + np.array([[3.0, 0, 0] if l == "a" else [-3.0, 0, 0]
+                                             for l in labels])
+    X[0] = [-3.0, 0, 0]  # clip 0 is labelled "a" but looks like "b"
+    judges = synthesis.held_out_judges(X, labels)
+    rate = synthesis.natural_rate(judges, X, labels, np.arange(20))
+    assert rate == {"rate": 19 / 20, "n": 20}  # only the odd clip is missed
+    # a judge that had seen clip 0 would more likely call it "a"
+    assert judges[0].predict_proba(X[:1])[0][list(judges[0].classes).index("a")] < 0.5
+
+
+def test_targets_are_judged_against_the_natural_rate():
+    g = {"natural_rate": {"rate": 0.8}, "synthesized_rate": {"mean": 0.76, "sampled": 0.7},
+         "naturalness": {"jerk_ratio": 1.1, "foot_sliding_ratio": 1.3},
+         "long_worst": {"latent_range": 1.5, "limb_motion_last_over_first": 0.9, "errors": 0}}
+    met = synthesis.targets_met(g)
+    assert met == {"rate_mean": True, "rate_sampled": False, "jerk": True,
+                   "foot_sliding": False, "long_latent_range": True, "long_limb_motion": True}
+    g["long_worst"]["errors"] = 1  # a rollout that diverged fails the range target
+    assert not synthesis.targets_met(g)["long_latent_range"]
+
+
+def test_missing_data_writes_a_skip_record(tmp_path):
+    out = tmp_path / "s.json"
+    res = synthesis.run(True, root=tmp_path / "nowhere", out=out)
+    assert "Bandai data not found" in res["skipped"]
+    assert json.loads(out.read_text())["skipped"] == res["skipped"]
+
+
+@pytest.mark.parametrize("name", ["synthesis"])
+def test_the_benchmark_is_in_the_suite(name):
+    import run_all
+
+    assert name in run_all.BENCHMARKS
