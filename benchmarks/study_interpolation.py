@@ -97,7 +97,8 @@ class Settings:
     gen_frames: int = 60
     latent_dim: int = 6
     interaction_dim: int = 3
-    max_iter: int = 200
+    max_iter: int = 1000
+    optimize_style: bool = False
     n_harmonics: int = 5
     seed: int = 0
     infer_s: tuple[float, ...] = (0.0, 0.5, 1.0)
@@ -177,7 +178,8 @@ def training_set(data: MotionDataset, cfg: Settings) -> MotionDataset:
 def fit_hgpdm(train: MotionDataset, cfg: Settings):
     spec = HGPDM(latent_dim=cfg.latent_dim, interaction_dim=cfg.interaction_dim,
                  interaction_factors=("emotion",), dynamics_factors=("emotion",))
-    return spec.fit(train, max_iter=cfg.max_iter, seed=cfg.seed, progress=False)
+    return spec.fit(train, max_iter=cfg.max_iter, seed=cfg.seed, progress=False,
+                    optimize_style=cfg.optimize_style)
 
 
 def gen_hgpdm(model, train: MotionDataset, content: str, emotion: str, s: float,
@@ -481,6 +483,8 @@ def main(argv=None) -> int:
     ap.add_argument("--root", default=None, help=f"Bandai folder (default {DATA_ROOT})")
     ap.add_argument("--out", default=None, help="JSON path (default results/<name>.json)")
     ap.add_argument("--max-iter", type=int, default=None, help="override the H-GPDM iterations")
+    ap.add_argument("--optimize-style", action="store_true",
+                    help="learn the emotions' style vectors in the H-GPDM fit")
     ap.add_argument("--table", action="store_true",
                     help="print the markdown table of an existing result (--out or the default "
                          "results file) instead of running")
@@ -494,6 +498,8 @@ def main(argv=None) -> int:
     cfg = QUICK if a.quick else Settings()
     if a.max_iter is not None:
         cfg = replace(cfg, max_iter=a.max_iter)
+    if a.optimize_style:
+        cfg = replace(cfg, optimize_style=True)
     res = run(a.quick, a.root, a.out, cfg)
     print(res.get("skipped") or res["conclusion"])
     return 0

@@ -215,3 +215,14 @@ def test_the_dynamics_weight_scales_the_dynamics_term_alone(stable_tiny):
     for bad in (0.0, -1.0, float("nan"), "2", True):
         with pytest.raises(BayesmotionError, match="dynamics_weight"):
             HGPDM(dynamics_weight=bad)
+
+
+def test_the_posterior_samples_the_autoregression_inside_the_stationary_region(stable_tiny):
+    with pytest.warns(Warning, match="shorter than"):  # a short chain is enough here
+        post = bm.sample_posterior(stable_tiny, n_steps=40, progress=False, seed=0)
+    assert any(n.startswith("atanh_pacf") for n in post.target.names)
+    ar = post.idata.posterior["ar"]
+    assert list(ar.coords["ar_lag"].values) == ["a_lag1", "a_lag2"]
+    draws = np.asarray(ar).reshape(-1, 2)
+    assert max(spectral_radius(a) for a in draws) < 1.0
+    assert post.idata.posterior["alpha"].shape[-1] == 4  # no linear-kernel weights
