@@ -12,7 +12,7 @@ from bayesmotion.model.data import ModelData, fit_codecs, prepare_data
 from bayesmotion.model.fitted import FittedHGPDM, trial_records
 from bayesmotion.model.layers import DynamicsIndex
 from bayesmotion.model.logpost import LogPosterior
-from bayesmotion.model.params import AR_KEY, STYLE_PREFIX, simplex_to_style
+from bayesmotion.model.params import AR_KEY, STYLE_PREFIX, ar_pacf, simplex_to_style
 from bayesmotion.optim.minimize import CONVERGENCE_RTOL, map_optimize
 
 if TYPE_CHECKING:
@@ -122,10 +122,11 @@ def initial_ar(I: np.ndarray, index: DynamicsIndex, max_pacf: float = 0.95) -> n
     clipped to +-``max_pacf`` (inside the stationary region, away from its edge)."""
     lags = np.stack([I[ix].ravel() for ix in index.lag], axis=1)  # (n * Q, o)
     a = np.linalg.lstsq(lags, I[index.out].ravel(), rcond=None)[0]
-    phi = a.copy() if a.size == 1 else np.array([a[0] / (1.0 - a[1]) if a[1] != 1 else 0.0,
-                                                  a[1]])
-    phi = np.clip(np.nan_to_num(phi), -max_pacf, max_pacf)
-    return np.arctanh(phi)
+    if a.size == 2:  # pull a non-stationary fit inside the triangle, then read its phi
+        a[1] = np.clip(a[1], -max_pacf, max_pacf)
+        a[0] = np.clip(a[0], -max_pacf * (1.0 - a[1]), max_pacf * (1.0 - a[1]))
+    return np.arctanh(np.clip(ar_pacf(np.clip(a, -max_pacf, max_pacf) if a.size == 1 else a),
+                              -max_pacf, max_pacf))
 
 
 def _free_factors(optimize_style, factors) -> tuple:

@@ -138,7 +138,8 @@ def ar_pacf(a) -> np.ndarray:
     """Inverse of :func:`ar_coefficients` on the partial autocorrelations: (a_1, .., a_o) ->
     phi. Raises ValueError outside the stationary region."""
     a = np.asarray(a, dtype=np.float64)
-    phi = a.copy() if a.size == 1 else np.array([a[0] / (1.0 - a[1]), a[1]])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        phi = a.copy() if a.size == 1 else np.array([a[0] / (1.0 - a[1]), a[1]])
     if not np.all(np.abs(phi) < 1.0):
         raise ValueError(f"autoregression coefficients {a.tolist()} are not stationary")
     return phi

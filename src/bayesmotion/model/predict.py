@@ -321,14 +321,15 @@ def dynamics_mean_stepper(P: Predictor, styles):
     o = U.shape[0]
     norms = jnp.sum(U**2, -1)  # (o, M)
     ls = alpha[1:1 + o][:, None]
-    lin = (alpha[1 + o:1 + 2 * o][:, None] if kernels.has_linear_term(alpha, o)
-           else jnp.zeros((o, 1)))
+    linear = kernels.has_linear_term(alpha, o)  # static: the paper's linear kernel term
 
     def step(lags, style_row):
         D = jnp.einsum("lmq,lq->lm", U, lags)  # i_{t-l} . u_{t-l}
         sq = jnp.maximum(norms + jnp.sum(lags**2, -1)[:, None] - 2.0 * D, 0.0)
-        k = style_row * (alpha[0] * jnp.exp(-0.5 * jnp.sum(ls * sq, 0)) + jnp.sum(lin * D, 0))
-        return k @ P.dyn.A + P.ar @ lags
+        k = alpha[0] * jnp.exp(-0.5 * jnp.sum(ls * sq, 0))
+        if linear:
+            k = k + jnp.sum(alpha[1 + o:1 + 2 * o][:, None] * D, 0)
+        return (style_row * k) @ P.dyn.A + P.ar @ lags
 
     return step, kernels.style_gram(list(styles), list(P.dyn_style))
 

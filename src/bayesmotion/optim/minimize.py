@@ -50,9 +50,9 @@ def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: f
     ``rtol`` of its magnitude over the last ``window`` iterations (:func:`stalled`; ``rtol=0``
     turns that test off), or after the iteration that passes ``max_seconds`` of optimisation
     (compilation excluded). A fit is ``converged`` when it stopped at one of the convergence
-    tests rather than at ``max_iter`` or ``max_seconds``; on the 10,000-parameter latent models the gradient test is never met
-    (the gradient norm stays in the thousands while the objective changes by parts per
-    million), so the stall test is the one that ends them.
+    tests rather than at ``max_iter`` or ``max_seconds``. On the 10,000-parameter latent
+    models scipy's gradient test is not met (the gradient norm stays in the thousands), so the
+    stall test is the one that can end them.
 
     Returns:
         (params at the optimum as NumPy arrays, diagnostics dict with iterations, evaluations,
