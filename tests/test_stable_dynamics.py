@@ -226,3 +226,9 @@ def test_the_posterior_samples_the_autoregression_inside_the_stationary_region(s
     draws = np.asarray(ar).reshape(-1, 2)
     assert max(spectral_radius(a) for a in draws) < 1.0
     assert post.idata.posterior["alpha"].shape[-1] == 4  # no linear-kernel weights
+
+
+def test_a_start_far_outside_the_training_range_is_the_users_and_not_a_divergence(stable_tiny):
+    rng = np.abs(np.asarray(stable_tiny.params["I"])).max()
+    roll = stable_tiny.generate(emotion="sad", n_frames=200, start=np.full((2, 3), 300 * rng))
+    assert np.abs(roll.I[-50:]).max() < 2 * rng

@@ -314,8 +314,9 @@ DIVERGED = 100.0
 
 
 def check_bounded(I: np.ndarray, I_train: np.ndarray, dynamics_linear: str) -> None:
-    """Raise BayesmotionError when a latent rollout is not finite or has left the training
-    latents' range by more than ``DIVERGED`` times, instead of decoding it.
+    """Raise BayesmotionError when a latent rollout is not finite or has left the range of
+    ``I_train`` (the training latents and the start) by more than ``DIVERGED`` times, instead
+    of decoding it.
 
     With the default stable dynamics a mean rollout is bounded by construction (a stationary
     autoregression driven by the bounded RBF mean); with the paper's linear kernel term
@@ -387,7 +388,8 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
     key = jax.random.PRNGKey(seed)
     I_gen, I_var = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n_frames - o, False)
     I = np.concatenate([I0, np.asarray(I_gen)])
-    check_bounded(I, np.asarray(model.params["I"]), model.spec.dynamics_linear)
+    reach = np.concatenate([np.asarray(model.params["I"]), I0])  # a given start counts too
+    check_bounded(I, reach, model.spec.dynamics_linear)
     I_var = np.concatenate([np.zeros(o), np.asarray(I_var)])[:, None] * np.ones_like(I)
     mean = _map_and_decode(model, P, jnp.asarray(I), int_s, r)
     samples = sample_var = None
@@ -397,7 +399,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
                                                    True)[0])
         I_s = np.concatenate([np.broadcast_to(I0, (n_samples, o, I0.shape[1])),
                               np.asarray(roll(keys))], axis=1)
-        check_bounded(I_s, np.asarray(model.params["I"]), model.spec.dynamics_linear)
+        check_bounded(I_s, reach, model.spec.dynamics_linear)
         samples = {"I": I_s, **_map_and_decode_samples(model, P, jnp.asarray(I_s), int_s, r)}
         sample_var = {k: v.var(0) for k, v in samples.items()}
     return Rollout(fps=model.fps, styles=coords,
