@@ -17,6 +17,13 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results"
+BANDAI_ROOT = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "bandai-emotion"
+"""Where the shared Bandai clips are beside a checkout (never copied into the repository)."""
+
+
+def bandai_present(root: Path) -> bool:
+    """Whether ``root`` holds the Bandai clips (its ``data/`` folder or BVH files)."""
+    return (root / "data").is_dir() or any(root.glob("*.bvh"))
 
 
 def cpu_model() -> str:

@@ -37,10 +37,10 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from _common import RESULTS, headline, machine_info, write_json  # noqa: E402
+from _common import BANDAI_ROOT, RESULTS, bandai_present, headline, machine_info, write_json  # noqa: E402
 
 NAME = "bandai_inference"
-DATA_ROOT = HERE.parent.parent / "shared" / "data" / "bandai-emotion"
+DATA_ROOT = BANDAI_ROOT
 WALKS = ("walk", "walk-back", "walk-left", "walk-right")
 # projection_iter: L-BFGS iterations of each start's latent projection (infer_emotion's
 # max_iter; its default of 200 stops far from the optima, see handshake_inference.py)
@@ -70,7 +70,7 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
     cfg["rest_frames"] = cfg["pose_space"] == "angles"  # joint angles only (see module doc)
     root = Path(root) if root is not None else DATA_ROOT
     base = {"name": NAME, "mode": "quick" if quick else "full", "settings": dict(cfg)}
-    if not (root / "data").is_dir() and not any(root.glob("*.bvh")):
+    if not bandai_present(root):
         return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
     t0 = time.perf_counter()
     data = load_bandai(root, content=cfg["contents"], fps=cfg["fps"])

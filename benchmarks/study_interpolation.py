@@ -52,7 +52,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from _common import RESULTS, headline, machine_info, write_json  # noqa: E402
+from _common import BANDAI_ROOT, RESULTS, bandai_present, headline, machine_info, write_json  # noqa: E402
 
 import bayesmotion  # noqa: E402, F401  (float64 on)
 from bayesmotion.baselines import (  # noqa: E402
@@ -76,7 +76,7 @@ from bayesmotion.features import clip_features  # noqa: E402
 from bayesmotion.model.spec import HGPDM  # noqa: E402
 
 NAME = "study_interpolation"
-DATA_ROOT = HERE.parent.parent / "shared" / "data" / "bandai-emotion"
+DATA_ROOT = BANDAI_ROOT
 S_VALUES = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25)
 METHODS = ("hgpdm", "fourier", "amaya", "rbf")
 NEUTRAL = "neutral"
@@ -437,7 +437,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
     root = Path(root) if root is not None else DATA_ROOT
     out = Path(out) if out is not None else RESULTS / f"{NAME}.json"
     base = {"name": NAME, "mode": "quick" if quick else "full", "settings": asdict(cfg)}
-    if not (root / "data").is_dir() and not any(root.glob("*.bvh")):
+    if not bandai_present(root):
         result = {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
         write_json(out, result)
         return result

@@ -59,7 +59,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from _common import RESULTS, headline, machine_info, write_json  # noqa: E402
+from _common import BANDAI_ROOT, RESULTS, bandai_present, headline, machine_info, write_json  # noqa: E402
 
 import bayesmotion  # noqa: E402, F401  (float64 on)
 from bayesmotion.baselines import LogisticRegression  # noqa: E402
@@ -78,7 +78,7 @@ from bayesmotion.model.generate import Transition  # noqa: E402
 from bayesmotion.model.spec import HGPDM  # noqa: E402
 
 NAME = "synthesis"
-DATA_ROOT = HERE.parent.parent / "shared" / "data" / "bandai-emotion"
+DATA_ROOT = BANDAI_ROOT
 TARGETS = {"rate_gap_max": 0.05, "jerk_ratio_max": 1.2, "foot_sliding_ratio_max": 1.2,
            "latent_range_max": 2.0, "limb_motion_min": 0.7}
 
@@ -328,7 +328,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
     base = {"name": NAME, "mode": "quick" if quick else "full",
             "settings": {**asdict(cfg), "groups": {k: list(v) for k, v in cfg.groups.items()}},
             "targets": TARGETS}
-    if not (root / "data").is_dir() and not any(root.glob("*.bvh")):
+    if not bandai_present(root):
         result = {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
         write_json(out, result)
         return result
