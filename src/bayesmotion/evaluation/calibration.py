@@ -191,3 +191,82 @@ def hpd_power_from_levels(levels, q: float = 0.9, etas=None) -> float:
                                f"{q:.0%} regions hold {q:.0%} of the truths (best "
                                f"{cover.max():.0%})")
     return float(ok.max())
+
+
+def reliability(probabilities, truth, n_bins: int = 10) -> list[dict]:
+    """Reliability diagram of top-label probabilities (Guo et al. 2017): the answers binned by
+    their confidence (the largest probability) into ``n_bins`` equal-width bins on [0, 1].
+
+    Args:
+        probabilities: (n, K) label probabilities of n clips. truth: (n,) true level indices.
+    Returns:
+        per non-empty bin ``{"lower", "upper", "count", "confidence"`` (mean),
+        ``"accuracy"}``: a calibrated posterior has accuracy = confidence in every bin.
+    """
+    p, t = _label_args(probabilities, truth)
+    if int(n_bins) != n_bins or n_bins < 1:
+        raise BayesmotionError(f"n_bins must be a positive integer, got {n_bins!r}")
+    conf = p.max(1)
+    right = np.argmax(p, 1) == t
+    edges = np.linspace(0.0, 1.0, int(n_bins) + 1)
+    # the top bin is closed: a confidence of exactly 1 falls in it
+    idx = np.minimum(np.searchsorted(edges, conf, side="right") - 1, int(n_bins) - 1)
+    return [{"lower": float(edges[b]), "upper": float(edges[b + 1]),
+             "count": int(np.sum(idx == b)), "confidence": float(conf[idx == b].mean()),
+             "accuracy": float(right[idx == b].mean())}
+            for b in range(int(n_bins)) if np.any(idx == b)]
+
+
+def expected_calibration_error(probabilities, truth, n_bins: int = 10) -> float:
+    """Top-label expected calibration error: sum over :func:`reliability` bins of
+    (count / n) |accuracy - confidence|. 0 for a calibrated posterior; a posterior answering
+    P = 1 at accuracy 0.8 scores 0.2."""
+    bins = reliability(probabilities, truth, n_bins)
+    n = sum(b["count"] for b in bins)
+    return float(sum(b["count"] / n * abs(b["accuracy"] - b["confidence"]) for b in bins))
+
+
+def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
+                      confident: float = 0.99) -> dict:
+    """What users read off label probabilities, for n labelled clips.
+
+    Returns a dict: ``accuracy``; ``ece`` and ``reliability`` (:func:`reliability`);
+    ``label_set_coverage`` (the truth inside the smallest set of levels holding probability
+    ``q``) and the sets' mean size; ``confident_wrong`` (the fraction of clips answered wrongly
+    with probability >= ``confident``); ``log_score`` (mean log probability of the truth) and
+    ``brier`` (mean squared error of the probability vector against the one-hot truth)."""
+    p, t = _label_args(probabilities, truth)
+    if not 0 < q < 1:
+        raise BayesmotionError(f"q must lie in (0, 1), got {q}")
+    n, K = p.shape
+    order = np.argsort(-p, 1, kind="stable")
+    cum = np.cumsum(np.take_along_axis(p, order, 1), 1)
+    size = np.minimum(np.argmax(cum >= q - 1e-12, 1) + 1, K)
+    inside = np.array([t[i] in order[i, :size[i]] for i in range(n)])
+    right = np.argmax(p, 1) == t
+    onehot = np.eye(K)[t]
+    return {"n": n, "accuracy": float(right.mean()),
+            "ece": expected_calibration_error(p, t, n_bins),
+            "reliability": reliability(p, t, n_bins),
+            "credible_level": q,
+            "label_set_coverage": float(inside.mean()),
+            "label_set_mean_size": float(size.mean()),
+            "confident_wrong": float(np.mean(~right & (p.max(1) >= confident))),
+            "confident_threshold": confident,
+            "log_score": float(np.mean(np.log(np.maximum(p[np.arange(n), t], 1e-300)))),
+            "brier": float(np.mean(np.sum((p - onehot) ** 2, 1)))}
+
+
+def _label_args(probabilities, truth) -> tuple[np.ndarray, np.ndarray]:
+    p = np.asarray(probabilities, dtype=np.float64)
+    t = np.asarray(truth)
+    if p.ndim != 2 or p.shape[0] < 1 or p.shape[1] < 2:
+        raise BayesmotionError(f"probabilities must be (n clips, K >= 2 levels), got shape "
+                               f"{p.shape}")
+    if not np.all(np.isfinite(p)) or np.any(p < 0) or np.any(np.abs(p.sum(1) - 1) > 1e-6):
+        raise BayesmotionError("every row of probabilities must be finite, non-negative and "
+                               "sum to 1")
+    if t.shape != (p.shape[0],) or t.dtype.kind not in "iu" or np.any((t < 0) | (t >= p.shape[1])):
+        raise BayesmotionError(f"truth must be ({p.shape[0]},) level indices in "
+                               f"[0, {p.shape[1]}), got {t!r}")
+    return p, t.astype(int)
