@@ -46,11 +46,12 @@ from bayesmotion.emotion.density import (
     styles_from,
 )
 from bayesmotion.emotion.ood import (
-    LAYERS,
     OutOfDistributionWarning,
     assess,
     clip_z2,
+    in_distribution_weight,
     training_reference,
+    worst_statistic,
 )
 from bayesmotion.emotion.projection import (
     STATIC_ARGS,
@@ -61,6 +62,7 @@ from bayesmotion.emotion.projection import (
     projection_starts,
 )
 from bayesmotion.emotion.result import EmotionPosterior, pool_posteriors
+from bayesmotion.emotion.evidence import evidence_power, level_posterior
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.inference.posterior import Posterior
 from bayesmotion.inference.target import capped_covariance, draw_start, in_halves
@@ -155,7 +157,8 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                   method: str = "emcee", seed: int = 0, n_walkers: int = 64, n_steps: int = 150,
                   n_draws: int = 4, max_iter: int = 200, latent_uncertainty: bool = True,
                   likelihood_power: float = 1.0,
-                  emotion_starts: str = "vertices") -> EmotionPosterior:
+                  emotion_starts: str = "vertices",
+                  effective_frames: float | None = None) -> EmotionPosterior:
     """Posterior over the emotion coordinates of an observed clip.
 
     Args:
@@ -200,6 +203,14 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             (neutral to happy) and 0.065 (sad to angry), against 0.054 and 0.45 with
             "nearest". With "vertices" ``info`` holds ``level_log_evidence``,
             ``level_probabilities`` and the Laplace details per level.
+        effective_frames: n_eff, how many of the clip's frames count as independent evidence
+            for its label (:mod:`bayesmotion.emotion.evidence`): the label probabilities
+            raise the levels' evidence to the power n_eff / (n_eff + T)
+            (``emotion_starts="vertices"``). None: the model's calibrated value
+            (``model.calibration["effective_frames"]``, set by
+            :meth:`FittedHGPDM.calibrate_evidence`), else infinity -- the plain evidence,
+            whose probabilities are overconfident on recordings unlike the training ones
+            (``info["evidence_calibrated"]`` says which).
     Returns:
         EmotionPosterior.
     """
@@ -220,21 +231,38 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             and np.isfinite(likelihood_power) and likelihood_power > 0):
         raise BayesmotionError(f"likelihood_power must be a positive finite number, got "
                                f"{likelihood_power!r}")
-    given = _given_styles(model.model if isinstance(model, Posterior) else model, couple,
-                          styles)
+    given = _given_styles(fitted, couple, styles)
+    n_eff = _resolve_effective_frames(fitted, effective_frames)
     if isinstance(model, Posterior):
         idx = np.linspace(0, model.n_draws - 1, min(n_draws, model.n_draws)).astype(int)
         parts = [_infer_one(model.model, model.predictor(int(i)), clip, frames, given, prior,
                             seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
-                            latent_uncertainty and k == 0, likelihood_power, emotion_starts)
+                            latent_uncertainty and k == 0, likelihood_power, emotion_starts,
+                            n_eff)
                  for k, i in enumerate(idx)]
         return pool_posteriors(parts)
     return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
-                      n_steps, max_iter, latent_uncertainty, likelihood_power, emotion_starts)
+                      n_steps, max_iter, latent_uncertainty, likelihood_power, emotion_starts,
+                      n_eff)
+
+
+def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
+    """(n_eff, calibrated): the given value, else the model's calibrated one, else infinity."""
+    if effective_frames is None:
+        cal = getattr(model, "calibration", None) or {}
+        if "effective_frames" in cal:
+            return float(cal["effective_frames"]), True
+        return float("inf"), False
+    if isinstance(effective_frames, bool) or not isinstance(
+            effective_frames, int | float | np.floating | np.integer) or not effective_frames > 0:
+        raise BayesmotionError(f"effective_frames must be a number > 0 (inf: the plain "
+                               f"evidence), got {effective_frames!r}")
+    return float(effective_frames), False
 
 
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
-               latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices"):
+               latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices",
+               n_eff=(float("inf"), False)):
     import emcee
 
     t0 = time.perf_counter()
@@ -351,19 +379,41 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
         lsty = (E, statics["int_factors"], statics["dyn_factors"], free)
         loglik = lambda W: np.asarray(_loglik_at_coords(jnp.asarray(W), *lsty))
     info["ood"] = ood
+    info["effective_frames"], info["evidence_calibrated"] = n_eff
+    label_p = None
+    if emotion_starts == "vertices":
+        prior_k = _largest_prior(conc["emotion"])
+        eta = evidence_power(T, n_eff[0])
+        p_in = level_posterior(levels_info["level_log_evidence"], np.log(prior_k), eta)
+        w = in_distribution_weight(ood)
+        label_p = w * p_in + (1.0 - w) * prior_k
+        info.update(evidence_power=eta, probabilities_in_distribution=p_in.tolist(),
+                    in_distribution_weight=w, level_prior=prior_k.tolist())
+    stage("levels")
+    info["seconds"] = time.perf_counter() - t0
     if ood["out_of_distribution"]:
-        worst = max(LAYERS, key=lambda n: ood[n]["median_z2"] / ood[n]["threshold"])
-        warnings.warn(f"the clip lies outside the training data: its median frame's "
-                      f"standardised {worst}-layer residual is {ood[worst]['median_z2']:.3g}, "
-                      f"above the {ood[worst]['threshold']:.3g} that 99% of held-out training "
-                      f"frames stay under (EmotionPosterior.info['ood']); its emotion "
-                      f"probabilities are the model's nearest explanation, not evidence",
+        worst = worst_statistic(ood)
+        what = (f"negative log predictive density per output of the {worst[:-8]} layer"
+                if worst.endswith("_density") else
+                f"standardised {worst}-layer residual")
+        warnings.warn(f"the clip lies outside the training data: its median frame's {what} "
+                      f"is {ood[worst]['median']:.3g}, above the {ood[worst]['threshold']:.3g} "
+                      f"that 99% of held-out training frames stay under "
+                      f"(EmotionPosterior.info['ood']); its emotion probabilities are shrunk "
+                      f"towards the prior (weight {info['in_distribution_weight']:.2f} on the "
+                      f"evidence)" if "in_distribution_weight" in info else
+                      f"the clip lies outside the training data: its median frame's {what} "
+                      f"is {ood[worst]['median']:.3g}, above the {ood[worst]['threshold']:.3g} "
+                      f"that 99% of held-out training frames stay under "
+                      f"(EmotionPosterior.info['ood']); its emotion probabilities are the "
+                      f"model's nearest explanation, not evidence",
                       OutOfDistributionWarning, stacklevel=3)
     return EmotionPosterior(tuple(model.levels["emotion"]), styles["emotion"], lat,
                             np.swapaxes(lp, 0, 1),
                             tuple(model.levels["couple"]) if cl else None,
                             styles.get("couple"), info, loglik, np.asarray(conc["emotion"]),
-                            out_of_distribution=bool(ood["out_of_distribution"]))
+                            out_of_distribution=bool(ood["out_of_distribution"]),
+                            label_probabilities=label_p)
 
 
 def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:

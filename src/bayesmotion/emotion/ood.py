@@ -20,6 +20,12 @@ motionless or foreign motion).
 A clip is flagged out of distribution when, in either layer, the median of its frames' z2
 exceeds the 99th percentile of the held-out training frames' z2: more than half of its frames
 are less likely than 99% of the frames of held-out training recordings.
+
+The emotion answer weighs the model's evidence by how much of the clip looks like training
+data (:func:`in_distribution_weight`): with a fraction b of its frames beyond the threshold in
+the worse layer (about 1 - 0.99 for a held-out training recording), the label probabilities
+are w p(level | clip) + (1 - w) p(level) with w = min(1, (1 - b) / 0.99): a clip whose every
+frame lies beyond gets the prior, not a confident label.
 """
 
 from __future__ import annotations
@@ -39,6 +45,10 @@ from bayesmotion.model.predict import (
 #: quantile of the training frames' leave-one-out z2 that a clip's median frame must exceed
 REFERENCE_QUANTILE = 0.99
 LAYERS = ("bottom", "dynamics")
+#: per layer, the standardised residual and the negative log predictive density per output
+#: column: a clip projected far from every training latent has a wide predictive, so its
+#: residuals look ordinary while its density does not
+STATISTICS = ("bottom", "dynamics", "bottom_density", "dynamics_density")
 
 
 class OutOfDistributionWarning(UserWarning):
@@ -49,8 +59,16 @@ class OutOfDistributionWarning(UserWarning):
 def held_out_z2(fit: LayerFit, groups: np.ndarray) -> np.ndarray:
     """(M,) standardised squared residual of every training row when its group (recording) is
     held out, averaged over the output columns (module docstring)."""
+    return held_out_stats(fit, groups)[0]
+
+
+def held_out_stats(fit: LayerFit, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(z2, nlpd), each (M,): every training row's standardised squared residual and negative
+    log predictive density per output column (nats) when its group is held out (module
+    docstring): nlpd = (z2 + log(2 pi v)) / 2 with v = (C^-1)_tt its predictive variance."""
     M = fit.A.shape[0]
-    out = np.empty(M)
+    z2 = np.empty(M)
+    var = np.empty(M)
     for g in np.unique(groups):
         rows = np.flatnonzero(groups == g)
         E = jnp.zeros((M, rows.size)).at[rows, np.arange(rows.size)].set(1.0)
@@ -58,45 +76,56 @@ def held_out_z2(fit: LayerFit, groups: np.ndarray) -> np.ndarray:
         C = V.T @ V  # [K^-1]_bb
         Cinv = jnp.linalg.inv(C)
         r = Cinv @ fit.A[rows]
-        out[rows] = np.asarray(jnp.mean(r**2, axis=1) / jnp.diag(Cinv))
-    return out
+        z2[rows] = np.asarray(jnp.mean(r**2, axis=1) / jnp.diag(Cinv))
+        var[rows] = np.asarray(jnp.diag(Cinv))
+    return z2, 0.5 * (z2 + np.log(2 * np.pi * var))
+
+
+def _summary(z: np.ndarray) -> dict:
+    return {"values": z, "median": float(np.median(z)),
+            "threshold": float(np.quantile(z, REFERENCE_QUANTILE))}
 
 
 def training_reference(P: Predictor, trial_of_frame: np.ndarray, order: int) -> dict:
-    """Per layer: the training frames' held-out-recording z2 (bottom: averaged over actors) and
-    its median and ``REFERENCE_QUANTILE`` quantile.
+    """Per statistic (:data:`STATISTICS`): the training frames' held-out-recording values
+    (bottom: averaged over actors), their median and ``REFERENCE_QUANTILE`` quantile.
 
     Args:
         trial_of_frame: (N,) training recording of every frame; order: the dynamics' order
             (its outputs are every recording's frames after the first ``order``).
     """
     tof = np.asarray(trial_of_frame)
-    bottom = np.mean([held_out_z2(LayerFit(L, A), tof)
-                      for L, A in zip(P.bottom_Linv, P.bottom_A, strict=True)], axis=0)
+    bottom = [held_out_stats(LayerFit(L, A), tof)
+              for L, A in zip(P.bottom_Linv, P.bottom_A, strict=True)]
     starts = np.flatnonzero(np.r_[True, tof[1:] != tof[:-1]])
     first = np.zeros(tof.size, bool)
     for k in range(order):
         first[starts + k] = True
-    dyn = held_out_z2(P.dyn, tof[~first])
-    return {name: {"z2": z, "median": float(np.median(z)),
-                   "threshold": float(np.quantile(z, REFERENCE_QUANTILE))}
-            for name, z in (("bottom", bottom), ("dynamics", dyn))}
+    dyn = held_out_stats(P.dyn, tof[~first])
+    return {"bottom": _summary(np.mean([b[0] for b in bottom], axis=0)),
+            "bottom_density": _summary(np.mean([b[1] for b in bottom], axis=0)),
+            "dynamics": _summary(dyn[0]), "dynamics_density": _summary(dyn[1])}
 
 
 def clip_z2(P: Predictor, X, I, Ys, dyn_styles) -> dict[str, np.ndarray]:
-    """Per layer, the clip's per-frame z2 at its projected latents.
+    """Per statistic (:data:`STATISTICS`), the clip's per-frame values at its projected
+    latents.
 
     Args:
         X: (A, T, Q_X) and I: (T, Q_I) projected latents; Ys: per actor (T, D_a) poses in the
             model's space; dyn_styles: per dynamics factor, the clip's (K_f,) style vector.
     Returns:
-        ``bottom``: (T,) averaged over actors; ``dynamics``: (T - o,) for the frames with o lags.
+        ``bottom`` and ``bottom_density``: (T,) averaged over actors; ``dynamics`` and
+        ``dynamics_density``: (T - o,) for the frames with o lags.
     """
     noise = noise_variances(P)
-    bottom = []
+    z2, nlpd = [], []
     for a, Y in enumerate(Ys):
         mu, var = predict_bottom(P, a, jnp.asarray(X[a]))
-        bottom.append(jnp.mean((jnp.asarray(Y) - mu) ** 2, axis=1) / (var + noise["Y"]))
+        v = var + noise["Y"]
+        z = jnp.mean((jnp.asarray(Y) - mu) ** 2, axis=1) / v
+        z2.append(z)
+        nlpd.append(0.5 * (z + jnp.log(2 * jnp.pi * v)))
     o = P.dyn_lags.shape[0]
     T = I.shape[0]
     I = jnp.asarray(I)
@@ -104,24 +133,54 @@ def clip_z2(P: Predictor, X, I, Ys, dyn_styles) -> dict[str, np.ndarray]:
     styles = [jnp.broadcast_to(jnp.asarray(s), (T - o, jnp.asarray(s).shape[-1]))
               for s in dyn_styles]
     mu, var = predict_dynamics(P, lags, styles)
-    dyn = jnp.mean((I[o:] - mu) ** 2, axis=1) / (var + noise["I"])
-    return {"bottom": np.asarray(jnp.mean(jnp.stack(bottom), axis=0)), "dynamics": np.asarray(dyn)}
+    v = var + noise["I"]
+    dyn = jnp.mean((I[o:] - mu) ** 2, axis=1) / v
+    return {"bottom": np.asarray(jnp.mean(jnp.stack(z2), axis=0)),
+            "bottom_density": np.asarray(jnp.mean(jnp.stack(nlpd), axis=0)),
+            "dynamics": np.asarray(dyn),
+            "dynamics_density": np.asarray(0.5 * (dyn + jnp.log(2 * jnp.pi * v)))}
 
 
 def assess(reference: dict, z2: dict[str, np.ndarray]) -> dict:
-    """The clip's distance from the training data, per layer and overall.
+    """The clip's distance from the training data, per statistic and overall.
 
-    Returns a dict: per layer ``{"median_z2", "reference_median", "threshold", "ratio"
-    (clip median / training median), "beyond" (fraction of the clip's frames beyond the
-    threshold)}``, and ``out_of_distribution`` (bool) and ``score`` (the larger ratio)."""
+    Returns a dict: per statistic of :data:`STATISTICS` present in both ``{"median" (the
+    clip's median frame), "reference_median", "threshold", "ratio", "beyond" (fraction of the
+    clip's frames beyond the threshold)}`` -- for the residuals ``ratio`` is clip median /
+    training median (and ``median_z2`` repeats the median), for the densities exp(clip median
+    - training median), how many times less likely per output column the clip's median frame
+    is; and ``out_of_distribution`` (bool) and ``score`` (the largest ratio)."""
     out = {}
-    for name in LAYERS:
+    names = [n for n in STATISTICS if n in reference and n in z2]
+    for name in names:
         ref, z = reference[name], z2[name]
-        med = float(np.median(z)) if z.size else 0.0
-        out[name] = {"median_z2": med, "reference_median": ref["median"],
-                     "threshold": ref["threshold"],
-                     "ratio": med / ref["median"] if ref["median"] > 0 else float("inf"),
+        med = float(np.median(z)) if z.size else float(ref["median"])
+        if name.endswith("_density"):
+            ratio = float(np.exp(min(med - ref["median"], 700.0)))
+        else:
+            ratio = med / ref["median"] if ref["median"] > 0 else float("inf")
+        out[name] = {"median": med, "reference_median": ref["median"],
+                     "threshold": ref["threshold"], "ratio": ratio,
                      "beyond": float(np.mean(z > ref["threshold"])) if z.size else 0.0}
-    out["out_of_distribution"] = any(out[n]["median_z2"] > out[n]["threshold"] for n in LAYERS)
-    out["score"] = max(out[n]["ratio"] for n in LAYERS)
+        if not name.endswith("_density"):
+            out[name]["median_z2"] = med
+    out["out_of_distribution"] = any(out[n]["median"] > out[n]["threshold"] for n in names)
+    out["score"] = max(out[n]["ratio"] for n in names)
     return out
+
+
+def worst_statistic(assessment: dict) -> str:
+    """The statistic whose median frame lies furthest beyond its threshold (in units of the
+    reference's spread between its median and threshold)."""
+    names = [n for n in STATISTICS if n in assessment]
+    return max(names, key=lambda n: (assessment[n]["median"] - assessment[n]["threshold"])
+               / max(assessment[n]["threshold"] - assessment[n]["reference_median"], 1e-12))
+
+
+def in_distribution_weight(assessment: dict) -> float:
+    """The share of the clip's frames within the training frames' threshold, in its worst
+    statistic, relative to the share expected of a training recording
+    (``REFERENCE_QUANTILE``); in [0, 1]. The weight of the model's evidence against the prior
+    in the emotion answer (module docstring)."""
+    inside = min(1.0 - assessment[n]["beyond"] for n in STATISTICS if n in assessment)
+    return float(np.clip(inside / REFERENCE_QUANTILE, 0.0, 1.0))

@@ -31,6 +31,12 @@ class EmotionPosterior:
         out_of_distribution: the clip lies outside the training data
             (:mod:`bayesmotion.emotion.ood`; the evidence is in ``info["ood"]``): its
             probabilities are the model's nearest explanation, not evidence about the clip.
+        label_probabilities: (K,) the posterior over which level generated the clip
+            (``emotion_starts="vertices"``: the levels' evidence weighed by the effective
+            frames per recording, :mod:`bayesmotion.emotion.evidence`, then shrunk towards the
+            prior as far as the clip is out of distribution, :mod:`bayesmotion.emotion.ood`),
+            which :attr:`probabilities` returns; None without level evidence (then the
+            samples' largest coordinate counts).
     """
 
     levels: tuple
@@ -43,6 +49,7 @@ class EmotionPosterior:
     log_likelihood: object = None
     prior_concentration: np.ndarray | None = None
     out_of_distribution: bool = False
+    label_probabilities: np.ndarray | None = None
     _idata: object = None
     _sample_logp: object = None
     _sample_loglik: object = None
@@ -172,7 +179,11 @@ class EmotionPosterior:
 
     @property
     def probabilities(self) -> np.ndarray:
-        """(K,) posterior probability that each category is the largest coordinate."""
+        """(K,) posterior probability of each level: :attr:`label_probabilities` when the
+        levels' evidence was computed, else the probability that each category is the largest
+        coordinate of the samples."""
+        if self.label_probabilities is not None:
+            return np.asarray(self.label_probabilities)
         k = np.argmax(self._flat(), 1)
         return np.bincount(k, minlength=len(self.levels)) / k.size
 
@@ -255,8 +266,12 @@ def pool_posteriors(parts: list[EmotionPosterior]) -> EmotionPosterior:
     info.update(seconds=sum(p.info["seconds"] for p in parts), n_model_draws=len(parts),
                 n_samples=sum(p.info["n_samples"] for p in parts),
                 ess=sum(p.info["ess"] for p in parts))
+    # the mixture over draws: its level probabilities are the draws' mean
+    probs = (np.mean([p.label_probabilities for p in parts], axis=0)
+             if all(p.label_probabilities is not None for p in parts) else None)
     return EmotionPosterior(first.levels, cat([p.samples for p in parts]), first.latents,
                             cat([p.log_prob for p in parts]), first.couple_levels,
                             None if first.couple_samples is None else cat(
                                 [p.couple_samples for p in parts]), info,
-                            out_of_distribution=any(p.out_of_distribution for p in parts))
+                            out_of_distribution=any(p.out_of_distribution for p in parts),
+                            label_probabilities=probs)

@@ -28,10 +28,16 @@ from bayesmotion.data.motion import MotionDataset
 from bayesmotion.emotion.infer import infer_emotion
 from bayesmotion.emotion.ood import OutOfDistributionWarning
 from bayesmotion.errors import BayesmotionError
+from bayesmotion.emotion.evidence import (
+    calibrate_effective_frames,
+    evidence_power,
+    level_posterior,
+)
 from bayesmotion.evaluation.calibration import (
     ETA_GRID,
     calibrate_likelihood_power,
     hpd_power_from_levels,
+    label_calibration,
     tempered_hpd_levels,
     tempering_proposal,
 )
@@ -111,21 +117,55 @@ def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
             "likelihood_power_all_trials": power(everyone >= 0)}
 
 
-def _baselines(dataset: MotionDataset, factor: str) -> dict:
+def _evidence_calibrated(rows, truth_idx, q) -> dict:
+    """Label probabilities with n_eff (the effective frames per recording,
+    :mod:`bayesmotion.emotion.evidence`) cross-fitted: trial i's from the other trials' plain
+    level evidence; each row gets ``evidence_calibrated`` {n_eff, probabilities, label_set}.
+    Returns the calibrated label metrics (:func:`label_calibration`) and n_eff fitted on all
+    trials (what :meth:`FittedHGPDM.calibrate_evidence` stores)."""
+    L = np.array([r["level_log_evidence"] for r in rows], dtype=np.float64)
+    T = np.array([r["n_frames"] for r in rows])
+    lp = np.log(np.array([r["level_prior"] for r in rows], dtype=np.float64))
+    w = np.array([r["in_distribution_weight"] for r in rows], dtype=np.float64)
+    everyone = np.arange(len(rows))
+    probs = []
+    for i, r in enumerate(rows):
+        keep = everyone != i
+        n_eff = calibrate_effective_frames(L[keep], T[keep], truth_idx[keep], lp[keep],
+                                           w[keep])["n_eff"]
+        p_in = level_posterior(L[i], lp[i], evidence_power(T[i], n_eff))
+        p = w[i] * p_in + (1 - w[i]) * np.exp(lp[i])
+        probs.append(p)
+        order = np.argsort(-p, kind="stable")
+        size = int(np.searchsorted(np.cumsum(p[order]), q - 1e-12) + 1)
+        r["evidence_calibrated"] = {"n_eff": n_eff, "probabilities": p.tolist(),
+                                    "label_set_size": min(size, p.size)}
+    n_eff = np.array([r["evidence_calibrated"]["n_eff"] for r in rows])
+    return {"label_calibration": label_calibration(np.array(probs), truth_idx, q),
+            "n_eff": {"median": float(np.median(n_eff)), "min": float(n_eff.min()),
+                      "max": float(n_eff.max())},
+            "n_eff_all_trials": calibrate_effective_frames(L, T, truth_idx, lp, w)["n_eff"]}
+
+
+def _baselines(dataset: MotionDataset, factor: str) -> tuple[dict, np.ndarray]:
     y = np.array(dataset.labels(factor))
     feats = trial_features(dataset)
     keys = trial_features(dataset, keyframe_features)
     poses = trial_features(dataset, mean_pose_features)
+    levels = list(dataset.levels[factor])
     out = {"affective_features": [], "relative_strength": [], "mean_pose_nn": []}
+    probs = np.zeros((len(dataset), len(levels)))  # the logistic regression's, in level order
     for i in range(len(dataset)):
         tr = np.arange(len(dataset)) != i
-        out["affective_features"].append(
-            LogisticRegression().fit(feats[tr], y[tr]).predict(feats[i:i + 1])[0])
+        clf = LogisticRegression().fit(feats[tr], y[tr])
+        out["affective_features"].append(clf.predict(feats[i:i + 1])[0])
+        # a level missing from the fold's training trials gets probability 0
+        probs[i, [levels.index(c) for c in clf.classes]] = clf.predict_proba(feats[i:i + 1])[0]
         out["relative_strength"].append(
             StrengthClassifier().fit(keys[tr], y[tr]).predict(keys[i:i + 1])[0])
         out["mean_pose_nn"].append(NearestNeighbour().fit(poses[tr], y[tr]).predict(
             poses[i:i + 1])[0])
-    return out
+    return out, probs
 
 
 def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_iter: int = 100,
@@ -189,7 +229,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         raise BayesmotionError(f"calibrate=True needs at least 3 trials, got {len(dataset)}")
     # the baselines first: they are cheap, and a skeleton their features cannot read must fail
     # before any fit, not after the folds' refits
-    b = _baselines(dataset, "emotion") if baselines else None
+    b, b_probs = _baselines(dataset, "emotion") if baselines else (None, None)
     if full_model is None:
         full_model = spec.fit(dataset, progress=progress, seed=seed, **fit_kwargs)
     levels = list(dataset.levels["emotion"])
@@ -221,6 +261,10 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
                      "hpd_covered": ep.hpd_contains(truth, q) if dens else None,
                      "truth_loglik_drop": ep.loglik_drop(truth) if dens else None,
                      "label_set": list(ep.label_set(q)),
+                     "n_frames": int(ep.info["n_frames"]),
+                     "level_log_evidence": ep.info.get("level_log_evidence"),
+                     "level_prior": ep.info.get("level_prior"),
+                     "in_distribution_weight": ep.info.get("in_distribution_weight"),
                      "out_of_distribution": ep.out_of_distribution,
                      "ood_score": ep.info["ood"]["score"],
                      "intervals_cover": bool(np.all((truth >= lo) & (truth <= hi))),
@@ -245,6 +289,11 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         "refit_iter": refit_iter,
         "likelihood_power": float(infer_kwargs.get("likelihood_power", 1.0)),
     }
+    truth_idx = np.array([levels.index(t) for t in true])
+    out["label_calibration"] = label_calibration([r["probabilities"] for r in rows], truth_idx,
+                                                 q)
+    if calibrate and all(r["level_log_evidence"] is not None for r in rows):
+        out["evidence"] = _evidence_calibrated(rows, truth_idx, q)
     if calibrate:
         try:
             out["calibrated"] = _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs)
@@ -253,6 +302,10 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
     if baselines:
         out["baselines"] = {k: float(np.mean([p == t for p, t in zip(v, true, strict=True)]))
                             for k, v in b.items()}
+        # the one baseline that answers with probabilities; Ho et al.'s ranking and the
+        # nearest neighbour give labels only
+        out["baseline_label_calibration"] = {
+            "affective_features": label_calibration(b_probs, truth_idx, q)}
     out["seconds"] = time.perf_counter() - t0
     return out
 

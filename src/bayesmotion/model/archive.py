@@ -102,6 +102,7 @@ def save_model(model, path) -> Path:
                    for r in model.trials],
         "fps": model.fps,
         "diagnostics": model.diagnostics,
+        "calibration": model.calibration,
     }
     arrays["__meta__"] = np.frombuffer(json.dumps(meta, default=_json_default).encode(), np.uint8)
     buf = _io.BytesIO()

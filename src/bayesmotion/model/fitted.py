@@ -64,6 +64,9 @@ class FittedHGPDM:
         trials: per training trial, a TrialRecord.
         fps: frame rate of the training data.
         diagnostics: convergence diagnostics of the fit.
+        calibration: what :meth:`calibrate_evidence` learned from recordings held out of the
+            fit: ``effective_frames`` (n_eff, :mod:`bayesmotion.emotion.evidence`), the log
+            scores and the number of recordings; empty when not calibrated.
     """
 
     spec: HGPDM
@@ -74,6 +77,7 @@ class FittedHGPDM:
     trials: tuple
     fps: float
     diagnostics: dict = field(default_factory=dict)
+    calibration: dict = field(default_factory=dict)
     _cache: dict = field(default_factory=dict, init=False, repr=False)
 
     # ------------------------------------------------------------------ accessors
@@ -177,6 +181,39 @@ class FittedHGPDM:
             a :class:`bayesmotion.model.generate.Rollout`.
         """
         return generate(self, emotion, couple, n_frames, n_samples, start, seed, **styles)
+
+    def calibrate_evidence(self, held_out) -> FittedHGPDM:
+        """This model with its emotion evidence calibrated on recordings held out of its fit.
+
+        Args:
+            held_out: a :func:`bayesmotion.evaluation.leave_one_out` result on this model's
+                training data (each trial inferred by a model fitted without it), whose
+                trials' plain level evidence sets n_eff, the frames one recording's evidence
+                is worth (:func:`bayesmotion.emotion.evidence.calibrate_effective_frames`).
+        Returns:
+            a new FittedHGPDM whose ``calibration`` holds n_eff; ``infer_emotion`` uses it, and
+            model files keep it.
+        """
+        from bayesmotion.emotion.evidence import calibrate_effective_frames
+
+        rows = held_out.get("trials") if isinstance(held_out, dict) else None
+        if not rows or any(r.get("level_log_evidence") is None for r in rows):
+            raise BayesmotionError("calibrate_evidence needs a leave_one_out result whose "
+                                   "trials kept their level evidence (emotion_starts="
+                                   "'vertices')")
+        levels = list(held_out["levels"])
+        if levels != list(self.levels.get("emotion", ())):
+            raise BayesmotionError(f"the result's emotion levels {levels} are not the "
+                                   f"model's {list(self.levels.get('emotion', ()))}")
+        cal = calibrate_effective_frames([r["level_log_evidence"] for r in rows],
+                                         [r["n_frames"] for r in rows],
+                                         np.array([levels.index(r["true"]) for r in rows]),
+                                         np.log([r["level_prior"] for r in rows]),
+                                         [r["in_distribution_weight"] for r in rows])
+        return replace(self, calibration={
+            "effective_frames": cal["n_eff"], "log_score": cal["log_score"],
+            "log_score_plain": cal["log_score_plain"], "n_recordings": cal["n_clips"],
+            "method": "leave-one-recording-out log score"})
 
     # ------------------------------------------------------------------ files
     def save(self, path) -> None:

@@ -104,9 +104,16 @@ def _build(meta: dict, arrays, path: Path) -> FittedHGPDM:
     jitter = diagnostics.get("jitter", 1e-8)
     if not _number(jitter) or not 0 <= jitter <= 1:
         raise _bad(path, f"diagnostics jitter {jitter!r} is not a number from 0 to 1")
+    calibration = meta.get("calibration", {})
+    if not isinstance(calibration, dict):
+        raise _bad(path, "calibration must be a mapping")
+    n_eff = calibration.get("effective_frames", 1.0)
+    if not _number(n_eff) or not n_eff > 0:
+        raise _bad(path, f"calibration effective_frames {n_eff!r} is not a number > 0")
     model = FittedHGPDM(spec=spec, params=params, codecs=codecs,
                         levels={k: tuple(v) for k, v in levels.items()}, data=data,
-                        trials=records, fps=float(fps), diagnostics=diagnostics)
+                        trials=records, fps=float(fps), diagnostics=diagnostics,
+                        calibration=calibration)
     _check_shapes(model, path)
     return model
 
