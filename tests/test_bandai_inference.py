@@ -48,14 +48,39 @@ def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
         np.mean([t["intervals_cover"] for t in r["trials"]]))
     assert set(r["baselines"]) == {"affective_features", "relative_strength", "mean_pose_nn"}
     assert [h["metric"].strip()[:6] for h in saved["headline"]] == \
-        ["H-GPDM", "temper", "affect", "relati", "mean-p", "second"]
+        ["H-GPDM", "label ", "label ", "coordi", "affect", "relati", "mean-p", "second"]
+    # the label metrics are those of the trials' probabilities
+    idx = np.array([levels.index(t) for t in true])
+    P = np.array([t["probabilities"] for t in r["trials"]])
+    assert r["label_calibration"]["accuracy"] == pytest.approx(r["accuracy"])
+    assert r["label_calibration"]["confident_wrong"] == pytest.approx(
+        np.mean((np.argmax(P, 1) != idx) & (P.max(1) >= 0.99)))
+    # the recording effect softens the answers but never changes a label
+    Q = np.array([t["evidence_calibrated"]["probabilities"] for t in r["trials"]])
+    np.testing.assert_array_equal(np.argmax(Q, 1), np.argmax(P, 1))
+    assert r["evidence"]["label_calibration"]["accuracy"] == pytest.approx(r["accuracy"])
+    assert saved["headline"][2]["value"] == pytest.approx(
+        r["evidence"]["label_calibration"]["ece"])
+    assert r["baseline_label_calibration"]["affective_features"]["accuracy"] == pytest.approx(
+        r["baselines"]["affective_features"])
     cal = r["calibrated"]
     if "error" in cal:  # no power reaches the coverage: the most any reaches is reported
         assert "no likelihood power" in cal["error"]
         assert 0.0 <= cal["reachable_hpd_coverage"] < 0.9
-        row = saved["headline"][1]
+        row = saved["headline"][3]
         assert row["value"] == pytest.approx(100 * cal["reachable_hpd_coverage"])
         assert "no likelihood power" in row["note"]
         return
     assert cal["coverage"] == pytest.approx(np.mean([t["calibrated"]["covered"]
                                                      for t in r["trials"]]))
+
+
+@pytest.mark.slow
+def test_quick_all_contents_run_pools_the_contents(bandai_root):
+    res = bandai_inference.run(True, root=bandai_root, all_contents=True)
+    r = res["result"]
+    assert res["name"] == "bandai_inference_all"
+    assert {c.split("_")[1] for c in res["clips"]} == {"walk-left", "bow"}
+    assert len(r["trials"]) == 8 and "calibrated" not in r  # the labels' calibration only
+    assert [h["metric"].strip()[:6] for h in res["headline"]] == \
+        ["H-GPDM", "label ", "label ", "affect", "relati", "mean-p", "second"]

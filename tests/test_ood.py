@@ -11,7 +11,12 @@ import bayesmotion as bm
 from bayesmotion.emotion.ood import (
     OutOfDistributionWarning,
     assess,
+    held_out_stats,
     held_out_z2,
+    in_distribution_weight,
+    recording_distance,
+    recording_reference,
+    recording_summary,
 )
 from bayesmotion.model.predict import LayerFit, pack_lower
 
@@ -40,6 +45,57 @@ def test_held_out_z2_equals_refitting_without_each_recording():
         cov = K[np.ix_(out, out)] - k.T @ np.linalg.solve(Kk, k)  # noise included
         want[out] = np.mean((Y[out] - mean) ** 2, axis=1) / np.diag(cov)
     np.testing.assert_allclose(held_out_z2(_fit(K, Y), groups), want, rtol=1e-8)
+    # the density: log N(r | 0, v) per column, v the held-out predictive variance
+    z2, nlpd = held_out_stats(_fit(K, Y), groups)
+    var = np.empty(M)
+    for g in range(4):
+        out, keep = groups == g, groups != g
+        k = K[np.ix_(keep, out)]
+        var[out] = np.diag(K[np.ix_(out, out)] - k.T @ np.linalg.solve(K[np.ix_(keep, keep)], k))
+    np.testing.assert_allclose(nlpd, 0.5 * (want + np.log(2 * np.pi * var)), rtol=1e-8)
+
+
+def _walk(rng, T=40, amp=1.0, freq=0.3):
+    t = np.arange(T)[:, None]
+    return amp * np.sin(freq * t + rng.uniform(0, 6, (1, 4))) + rng.normal(0, 0.05, (T, 4))
+
+
+def test_recording_distance_is_conformal_and_flags_another_action():
+    rng = np.random.default_rng(0)
+    train = [_walk(rng, amp=rng.uniform(0.9, 1.1)) for _ in range(12)]
+    Y = (np.concatenate(train),)
+    tof = np.repeat(np.arange(12), 40)
+    ref = recording_reference(Y, tof)
+    # each training recording's nearest other, by hand
+    S = np.stack([recording_summary([y]) for y in train])
+    Z = S / S.std(0)
+    D = np.sqrt(((Z[:, None] - Z[None]) ** 2).mean(-1))
+    np.fill_diagonal(D, np.inf)
+    np.testing.assert_allclose(ref["held_out_nearest"], D.min(1))
+    assert ref["largest"] == pytest.approx(D.min(1).max())
+    same = recording_distance(ref, [_walk(rng)])
+    assert same["ratio"] < 1.5 and not same["beyond"]
+    assert same["p_value"] == pytest.approx(
+        (1 + np.sum(ref["held_out_nearest"] >= same["nearest_distance"])) / 13)
+    # a bow: a slow single excursion, not a gait
+    t = np.linspace(0, 1, 40)[:, None]
+    bow = np.concatenate([np.sin(np.pi * t) * 2.0, np.zeros((40, 3))], axis=1)
+    other = recording_distance(ref, [bow])
+    assert other["beyond"] and other["ratio"] > 2 and other["p_value"] == pytest.approx(1 / 13)
+    assert recording_reference(Y, np.repeat([0, 1], 240)) is None  # too few recordings
+
+
+def test_in_distribution_weight_takes_the_worse_of_frames_and_recording():
+    ref = {"bottom": _reference(1.0, 3.0), "dynamics": _reference(0.5, 2.0)}
+    frames = {"bottom": np.r_[np.ones(9), 10.0], "dynamics": np.ones(10)}
+    a = assess(ref, frames)
+    assert in_distribution_weight(a) == pytest.approx(0.9 / 0.99)
+    rec = {"ratio": 1.75, "beyond": True}
+    b = assess(ref, frames, rec)
+    assert b["out_of_distribution"] and b["score"] == 2.0  # the dynamics ratio is larger
+    assert in_distribution_weight(b) == pytest.approx(0.25)
+    assert in_distribution_weight(assess(ref, frames, {"ratio": 0.6, "beyond": False})) == \
+        pytest.approx(0.9 / 0.99)
 
 
 def _reference(median, threshold):
@@ -75,6 +131,9 @@ def test_training_clips_pass_and_foreign_motion_is_flagged(tiny_model):
         post = bm.infer_emotion(tiny_model, shaken, n_steps=60)
     assert post.out_of_distribution and "OUT OF DISTRIBUTION" in str(post)
     assert post.info["ood"]["score"] > 3 * own.info["ood"]["score"]
+    # a spread-out answer: the evidence is shrunk towards the prior
+    assert post.info["in_distribution_weight"] < 0.5 < own.info["in_distribution_weight"]
+    assert post.entropy > own.entropy + 0.2
     # a motionless clip (the first frame held): the dynamics layer cannot explain it
     still = bm.Trial(tuple(bm.Motion(a.skeleton, np.repeat(a.values[:1], a.n_frames, 0), a.fps,
                                      a.name) for a in trial.actors), dict(trial.labels), "still")

@@ -45,11 +45,15 @@ from bayesmotion.emotion.density import (
     style_expansion,
     styles_from,
 )
+from bayesmotion.emotion.evidence import evidence_power, level_posterior
 from bayesmotion.emotion.ood import (
+    STATISTICS,
     OutOfDistributionWarning,
     assess,
     clip_z2,
     in_distribution_weight,
+    recording_distance,
+    recording_reference,
     training_reference,
     worst_statistic,
 )
@@ -62,7 +66,6 @@ from bayesmotion.emotion.projection import (
     projection_starts,
 )
 from bayesmotion.emotion.result import EmotionPosterior, pool_posteriors
-from bayesmotion.emotion.evidence import evidence_power, level_posterior
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.inference.posterior import Posterior
 from bayesmotion.inference.target import capped_covariance, draw_start, in_halves
@@ -392,21 +395,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     stage("levels")
     info["seconds"] = time.perf_counter() - t0
     if ood["out_of_distribution"]:
-        worst = worst_statistic(ood)
-        what = (f"negative log predictive density per output of the {worst[:-8]} layer"
-                if worst.endswith("_density") else
-                f"standardised {worst}-layer residual")
-        warnings.warn(f"the clip lies outside the training data: its median frame's {what} "
-                      f"is {ood[worst]['median']:.3g}, above the {ood[worst]['threshold']:.3g} "
-                      f"that 99% of held-out training frames stay under "
-                      f"(EmotionPosterior.info['ood']); its emotion probabilities are shrunk "
-                      f"towards the prior (weight {info['in_distribution_weight']:.2f} on the "
-                      f"evidence)" if "in_distribution_weight" in info else
-                      f"the clip lies outside the training data: its median frame's {what} "
-                      f"is {ood[worst]['median']:.3g}, above the {ood[worst]['threshold']:.3g} "
-                      f"that 99% of held-out training frames stay under "
-                      f"(EmotionPosterior.info['ood']); its emotion probabilities are the "
-                      f"model's nearest explanation, not evidence",
+        warnings.warn(_ood_message(ood, info.get("in_distribution_weight")),
                       OutOfDistributionWarning, stacklevel=3)
     return EmotionPosterior(tuple(model.levels["emotion"]), styles["emotion"], lat,
                             np.swapaxes(lp, 0, 1),
@@ -414,6 +403,26 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
                             styles.get("couple"), info, loglik, np.asarray(conc["emotion"]),
                             out_of_distribution=bool(ood["out_of_distribution"]),
                             label_probabilities=label_p)
+
+
+def _ood_message(ood: dict, weight) -> str:
+    """What the out-of-distribution warning says: the statistic that tripped it first."""
+    frames = [n for n in STATISTICS if n in ood and ood[n]["median"] > ood[n]["threshold"]]
+    if frames:
+        worst = worst_statistic({n: ood[n] for n in frames})
+        what = (f"negative log predictive density per output of the {worst[:-8]} layer"
+                if worst.endswith("_density") else f"standardised {worst}-layer residual")
+        why = (f"its median frame's {what} is {ood[worst]['median']:.3g}, above the "
+               f"{ood[worst]['threshold']:.3g} that 99% of held-out training frames stay under")
+    else:
+        rec = ood["recording"]
+        why = (f"as a recording it is {rec['ratio']:.2f} times as far from its nearest training "
+               f"recording as the most isolated training recording is from the others")
+    then = ("its emotion probabilities are the model's nearest explanation, not evidence"
+            if weight is None else f"its emotion probabilities are shrunk towards the prior "
+                                   f"(weight {weight:.2f} on the evidence)")
+    return (f"the clip lies outside the training data: {why} (EmotionPosterior.info['ood']); "
+            f"{then}")
 
 
 def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:
@@ -428,7 +437,11 @@ def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:
         reference = training_reference(P, model.data.trial_of_frame, model.spec.order)
     dyn = styles_from(params, fixed, tuple(model.spec.dynamics_factors), P.level_vectors)
     z2 = clip_z2(P, np.asarray(params["X"])[:, :T], np.asarray(params["I"])[:T], Ys, dyn)
-    return assess(reference, z2)
+    if "recording_reference" not in model._cache:
+        model._cache["recording_reference"] = recording_reference(model.data.Y,
+                                                                  model.data.trial_of_frame)
+    ref = model._cache["recording_reference"]
+    return assess(reference, z2, None if ref is None else recording_distance(ref, Ys))
 
 
 def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc):

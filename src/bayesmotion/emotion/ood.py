@@ -21,11 +21,24 @@ A clip is flagged out of distribution when, in either layer, the median of its f
 exceeds the 99th percentile of the held-out training frames' z2: more than half of its frames
 are less likely than 99% of the frames of held-out training recordings.
 
+Frame by frame, a clip of another action can look ordinary: its latents are fitted to it, and
+a flexible pose space (the 18 affective features) reconstructs a bow as well as a walk. The
+recording as a whole does not: its summary -- per pose channel, the mean, the sd and the mean
+absolute frame-to-frame change -- is compared with the training recordings' (each channel
+scaled by its sd across them). With d the root-mean-square distance to the nearest training
+recording and d_ref the largest such distance of a training recording to the others (each
+held out in turn), r = d / d_ref. A new recording like the training ones exceeds every
+training recording's distance (r > 1) with probability at most 1 / (n + 1) for n training
+recordings (exchangeability: a conformal p-value); it is flagged at r > 1.5. On the walk model
+of the shared Bandai clips (12 walks; ``benchmarks/results/bandai_inference.json``) the
+held-out walks-back scored r <= 1.0, every bow, wave, guide and dash 1.8-3.5.
+
 The emotion answer weighs the model's evidence by how much of the clip looks like training
-data (:func:`in_distribution_weight`): with a fraction b of its frames beyond the threshold in
-the worse layer (about 1 - 0.99 for a held-out training recording), the label probabilities
-are w p(level | clip) + (1 - w) p(level) with w = min(1, (1 - b) / 0.99): a clip whose every
-frame lies beyond gets the prior, not a confident label.
+data (:func:`in_distribution_weight`), w = min(w_frames, w_recording): with a fraction b of its
+frames beyond the threshold in the worst statistic (about 1 - 0.99 for a held-out training
+recording), w_frames = min(1, (1 - b) / 0.99); w_recording = 1 for r <= 1, 0 for r >= 2, linear
+between. The label probabilities are w p(level | clip) + (1 - w) p(level): a clip unlike every
+training recording gets the prior, not a confident label.
 """
 
 from __future__ import annotations
@@ -44,6 +57,8 @@ from bayesmotion.model.predict import (
 
 #: quantile of the training frames' leave-one-out z2 that a clip's median frame must exceed
 REFERENCE_QUANTILE = 0.99
+#: distance ratio r (module docstring) beyond which a recording is flagged
+RECORDING_FLAG = 1.5
 LAYERS = ("bottom", "dynamics")
 #: per layer, the standardised residual and the negative log predictive density per output
 #: column: a clip projected far from every training latent has a wide predictive, so its
@@ -141,7 +156,7 @@ def clip_z2(P: Predictor, X, I, Ys, dyn_styles) -> dict[str, np.ndarray]:
             "dynamics_density": np.asarray(0.5 * (dyn + jnp.log(2 * jnp.pi * v)))}
 
 
-def assess(reference: dict, z2: dict[str, np.ndarray]) -> dict:
+def assess(reference: dict, z2: dict[str, np.ndarray], recording: dict | None = None) -> dict:
     """The clip's distance from the training data, per statistic and overall.
 
     Returns a dict: per statistic of :data:`STATISTICS` present in both ``{"median" (the
@@ -149,7 +164,9 @@ def assess(reference: dict, z2: dict[str, np.ndarray]) -> dict:
     clip's frames beyond the threshold)}`` -- for the residuals ``ratio`` is clip median /
     training median (and ``median_z2`` repeats the median), for the densities exp(clip median
     - training median), how many times less likely per output column the clip's median frame
-    is; and ``out_of_distribution`` (bool) and ``score`` (the largest ratio)."""
+    is; ``recording`` (:func:`recording_distance`, when given); and ``out_of_distribution``
+    (bool: a median frame beyond its threshold, or the recording beyond ``RECORDING_FLAG``)
+    and ``score`` (the largest ratio)."""
     out = {}
     names = [n for n in STATISTICS if n in reference and n in z2]
     for name in names:
@@ -166,6 +183,10 @@ def assess(reference: dict, z2: dict[str, np.ndarray]) -> dict:
             out[name]["median_z2"] = med
     out["out_of_distribution"] = any(out[n]["median"] > out[n]["threshold"] for n in names)
     out["score"] = max(out[n]["ratio"] for n in names)
+    if recording is not None:
+        out["recording"] = recording
+        out["out_of_distribution"] = out["out_of_distribution"] or recording["beyond"]
+        out["score"] = max(out["score"], recording["ratio"])
     return out
 
 
@@ -177,10 +198,62 @@ def worst_statistic(assessment: dict) -> str:
                / max(assessment[n]["threshold"] - assessment[n]["reference_median"], 1e-12))
 
 
+def recording_summary(Ys) -> np.ndarray:
+    """(3 sum_a D_a,) per actor and pose channel: the mean, the sd and the mean absolute
+    frame-to-frame change of a recording's poses (per actor (T, D_a), in the model's space)."""
+    parts = []
+    for Y in Ys:
+        Y = np.asarray(Y, dtype=np.float64)
+        step = np.abs(np.diff(Y, axis=0)).mean(0) if Y.shape[0] > 1 else np.zeros(Y.shape[1])
+        parts += [Y.mean(0), Y.std(0), step]
+    return np.concatenate(parts)
+
+
+def recording_reference(Y, trial_of_frame) -> dict | None:
+    """The training recordings' summaries, the channels' scales and each recording's distance
+    to its nearest other recording (None with fewer than 3 recordings: no reference).
+
+    Args:
+        Y: per actor (N, D_a) training poses; trial_of_frame: (N,) recording of every frame.
+    """
+    tof = np.asarray(trial_of_frame)
+    ids = np.unique(tof)
+    if ids.size < 3:
+        return None
+    S = np.stack([recording_summary([np.asarray(y)[tof == r] for y in Y]) for r in ids])
+    scale = S.std(0)
+    scale = np.where(scale > 1e-9 * max(float(scale.max()), 1e-300), scale, np.inf)
+    Z = S / scale
+    D = np.sqrt(np.mean((Z[:, None] - Z[None]) ** 2, -1))
+    np.fill_diagonal(D, np.inf)
+    nearest = D.min(1)
+    return {"summaries": S, "scale": scale, "held_out_nearest": nearest,
+            "largest": float(nearest.max())}
+
+
+def recording_distance(reference: dict, Ys) -> dict:
+    """The clip's distance to its nearest training recording relative to the reference's
+    largest (module docstring): ``{"nearest_distance", "reference_largest", "ratio",
+    "nearest_recording" (index), "p_value" (conformal, (1 + #{training >= d}) / (n + 1)),
+    "beyond" (ratio > RECORDING_FLAG)}``."""
+    z = recording_summary(Ys) / reference["scale"]
+    d = np.sqrt(np.mean((reference["summaries"] / reference["scale"] - z) ** 2, -1))
+    k = int(np.argmin(d))
+    near = reference["held_out_nearest"]
+    ratio = float(d[k] / reference["largest"]) if reference["largest"] > 0 else float("inf")
+    return {"nearest_distance": float(d[k]), "reference_largest": reference["largest"],
+            "ratio": ratio, "nearest_recording": k,
+            "p_value": float((1 + np.sum(near >= d[k])) / (near.size + 1)),
+            "beyond": bool(ratio > RECORDING_FLAG)}
+
+
 def in_distribution_weight(assessment: dict) -> float:
     """The share of the clip's frames within the training frames' threshold, in its worst
     statistic, relative to the share expected of a training recording
     (``REFERENCE_QUANTILE``); in [0, 1]. The weight of the model's evidence against the prior
     in the emotion answer (module docstring)."""
     inside = min(1.0 - assessment[n]["beyond"] for n in STATISTICS if n in assessment)
-    return float(np.clip(inside / REFERENCE_QUANTILE, 0.0, 1.0))
+    w = float(np.clip(inside / REFERENCE_QUANTILE, 0.0, 1.0))
+    if "recording" in assessment:
+        w = min(w, float(np.clip(2.0 - assessment["recording"]["ratio"], 0.0, 1.0)))
+    return w

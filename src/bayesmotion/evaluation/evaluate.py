@@ -25,14 +25,14 @@ from bayesmotion.baselines.classifier import (
 )
 from bayesmotion.baselines.strength import StrengthClassifier, keyframe_features
 from bayesmotion.data.motion import MotionDataset
-from bayesmotion.emotion.infer import infer_emotion
-from bayesmotion.emotion.ood import OutOfDistributionWarning
-from bayesmotion.errors import BayesmotionError
 from bayesmotion.emotion.evidence import (
     calibrate_effective_frames,
     evidence_power,
     level_posterior,
 )
+from bayesmotion.emotion.infer import infer_emotion
+from bayesmotion.emotion.ood import OutOfDistributionWarning
+from bayesmotion.errors import BayesmotionError
 from bayesmotion.evaluation.calibration import (
     ETA_GRID,
     calibrate_likelihood_power,
@@ -170,7 +170,7 @@ def _baselines(dataset: MotionDataset, factor: str) -> tuple[dict, np.ndarray]:
 
 def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_iter: int = 100,
                   n_steps: int = 400, q: float = 0.9, baselines: bool = True, progress=False,
-                  seed: int = 0, fit_kwargs: dict | None = None, calibrate: bool = False,
+                  seed: int = 0, fit_kwargs: dict | None = None, calibrate: bool | str = False,
                   infer_kwargs: dict | None = None) -> dict:
     """Leave-one-trial-out emotion inference.
 
@@ -184,7 +184,14 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         baselines: also run the affective-feature classifier, Ho et al.'s relative-strength
             ranking and a mean-pose nearest neighbour on the same folds.
         fit_kwargs: further options of every fit (e.g. ``optimize_style=("content",)``).
-        calibrate: also infer each held-out trial from a tempered posterior whose likelihood
+        calibrate: True: calibrate the label probabilities and the coordinates' regions on
+            held-out trials, each trial's calibration cross-fitted from the others alone;
+            "labels": the label probabilities only (no second inference per trial). The label
+            probabilities: n_eff, the frames one recording's evidence is worth
+            (:mod:`bayesmotion.emotion.evidence`), from the other trials' plain level evidence,
+            under ``"evidence"`` (with ``n_eff_all_trials`` for
+            :meth:`FittedHGPDM.calibrate_evidence`). The coordinates:
+            also infer each held-out trial from a tempered posterior whose likelihood
             power is calibrated on the *other* trials' plain posteriors (without trial i:
             :func:`calibrate_hpd_power` on their clip likelihoods over the simplex when every
             posterior kept its density, else :func:`calibrate_likelihood_power` on their
@@ -200,8 +207,12 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
     The held-out trial's labels of the model's other style factors (couple, content, ...) are
     given to ``infer_emotion``; only its emotion is inferred.
     Returns:
-        dict: per-trial true/pred labels, means, probabilities, coverage; accuracy and its
-        binomial sd; confusion matrix (percent, Taubert layout); baseline accuracies; seconds.
+        dict: per-trial true/pred labels, means, probabilities, coverage, plain level
+        evidence, inference seconds; accuracy and its binomial sd; confusion matrix (percent,
+        Taubert layout); baseline accuracies; seconds. ``label_calibration``: ECE, reliability
+        bins, label-set coverage, confident errors and log score of the label probabilities
+        (:func:`bayesmotion.evaluation.calibration.label_calibration`), and
+        ``baseline_label_calibration`` the same for the affective-feature classifier.
         Four coverages of the true label's coordinates (a vertex of the simplex) at level ``q``:
         ``coverage``, by the ellipsoidal credible region
         (:meth:`EmotionPosterior.region_contains`); ``hpd_coverage``, by the highest-density
@@ -225,6 +236,8 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
     if taken:
         raise BayesmotionError(f"infer_kwargs may not set {sorted(taken)}: leave_one_out sets "
                                f"them")
+    if calibrate not in (True, False, "labels"):
+        raise BayesmotionError(f"calibrate must be True, False or 'labels', got {calibrate!r}")
     if calibrate and len(dataset) < 3:
         raise BayesmotionError(f"calibrate=True needs at least 3 trials, got {len(dataset)}")
     # the baselines first: they are cheap, and a skeleton their features cannot read must fail
@@ -244,7 +257,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         truth = np.eye(len(levels))[levels.index(held.labels["emotion"])]
         lo, hi = ep.interval(q)
         dens = ep.log_likelihood is not None
-        if calibrate:
+        if calibrate is True:
             dens_at = None
             if dens:  # the clip's likelihood over the simplex, for the regions' exact levels
                 U, lq = tempering_proposal(ep.mean, seed=seed)
@@ -265,6 +278,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
                      "level_log_evidence": ep.info.get("level_log_evidence"),
                      "level_prior": ep.info.get("level_prior"),
                      "in_distribution_weight": ep.info.get("in_distribution_weight"),
+                     "seconds": float(ep.info["seconds"]),
                      "out_of_distribution": ep.out_of_distribution,
                      "ood_score": ep.info["ood"]["score"],
                      "intervals_cover": bool(np.all((truth >= lo) & (truth <= hi))),
@@ -294,7 +308,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
                                                  q)
     if calibrate and all(r["level_log_evidence"] is not None for r in rows):
         out["evidence"] = _evidence_calibrated(rows, truth_idx, q)
-    if calibrate:
+    if calibrate is True:
         try:
             out["calibrated"] = _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs)
         except BayesmotionError as e:  # keep the plain results
