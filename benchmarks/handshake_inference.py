@@ -10,7 +10,9 @@ held-out trial's emotion with ``infer_emotion`` (couple given) and scores it, wi
 affective-feature classifier and a mean-pose nearest neighbour on the same folds. Targets (issue:
 emotion inference): >= 95% correct; the 90% credible region holds the true label's coordinates
 in 80-98% of trials. The coverage is reported for the plain posterior and for the tempered one
-whose likelihood power each fold takes from the other folds (``calibrate=True``). The JSON is
+whose likelihood power each fold takes from the other folds (``calibrate=True``), and the label
+probabilities' calibration (ECE, label sets, confident errors) for the plain evidence and with
+the recording effect (``bayesmotion.emotion.evidence``; n_eff cross-fitted). The JSON is
 written atomically to ``results/handshake_inference.json``.
 """
 
@@ -35,6 +37,13 @@ FULL = {"fps": 10.0, "couples": None, "max_iter": 300, "refit_iter": 100, "n_ste
         "emotion_starts": "vertices", "projection_iter": 1000}
 QUICK = {"fps": 10.0, "couples": ["c1"], "max_iter": 30, "refit_iter": 10, "n_steps": 60,
          "emotion_starts": "vertices", "projection_iter": 200}
+
+
+def _label_row(metric: str, cal: dict, note: str = "") -> dict:
+    return headline(metric, cal["ece"], "ECE", "<= 0.05", cal["ece"] <= 0.05,
+                    f"90% label sets cover {100 * cal['label_set_coverage']:.0f}%; wrong with "
+                    f"P >= 0.99 in {100 * cal['confident_wrong']:.0f}%; log score "
+                    f"{cal['log_score']:.2f}" + (f"; {note}" if note else ""))
 
 
 def _tempered_row(cal: dict, quick: bool) -> dict:
@@ -79,8 +88,14 @@ def run(quick: bool) -> dict:
                  f"ellipsoidal region {100 * cov:.0f}%; 90% label set "
                  f"{100 * res['label_set_coverage']:.0f}%"),
         _tempered_row(cal, quick),
+        _label_row("  label probabilities, plain evidence", res["label_calibration"]),
+        _label_row("  label probabilities, recording effect (n_eff cross-fitted)",
+                   res["evidence"]["label_calibration"],
+                   f"median n_eff {res['evidence']['n_eff']['median']:.3g} frames"),
         headline("  affective-feature classifier, same folds",
-                 100 * res["baselines"]["affective_features"], "%"),
+                 100 * res["baselines"]["affective_features"], "%", "", None,
+                 f"its probabilities: ECE "
+                 f"{res['baseline_label_calibration']['affective_features']['ece']:.2f}"),
         headline("  relative-strength ranking (Ho et al.), same folds",
                  100 * res["baselines"]["relative_strength"], "%"),
         headline("  mean-pose nearest neighbour, same folds",

@@ -48,7 +48,11 @@ def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
         np.mean([t["intervals_cover"] for t in r["trials"]]))
     assert set(r["baselines"]) == {"affective_features", "relative_strength", "mean_pose_nn"}
     assert [h["metric"].strip()[:6] for h in saved["headline"]] == \
-        ["H-GPDM", "label ", "label ", "coordi", "affect", "relati", "mean-p", "second"]
+        ["H-GPDM", "label ", "label ", "coordi", "affect", "relati", "mean-p", "second",
+         "other "]
+    fo = saved["foreign_actions"]  # quick: the four clips of one other action
+    assert fo["n"] == 4 and len(fo["clips"]) == 4
+    assert fo["flagged"] == pytest.approx(np.mean([c["flagged"] for c in fo["clips"]]))
     # the label metrics are those of the trials' probabilities
     idx = np.array([levels.index(t) for t in true])
     P = np.array([t["probabilities"] for t in r["trials"]])
