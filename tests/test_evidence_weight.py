@@ -166,3 +166,35 @@ def test_calibrated_model_keeps_its_effective_frames_in_its_file(tiny_model, tmp
     assert ep.info["effective_frames"] == model.calibration["effective_frames"]
     with pytest.raises(BayesmotionError, match="level evidence"):
         tiny_model.calibrate_evidence({"trials": [{"level_log_evidence": None}]})
+
+
+@pytest.mark.slow
+def test_cli_evaluate_calibrates_and_saves_the_model(tmp_path, capsys):
+    """``bayesmotion evaluate --calibrate --save-calibrated OUT`` prints the label
+    probabilities' calibration and writes a model that infer then uses."""
+    import bayesmotion as bm
+    from bayesmotion.app.cli import main
+    from bayesmotion.datasets.loaders import load_data
+
+    from .conftest import make_tiny_dataset
+
+    folder = tmp_path / "data"
+    folder.mkdir()
+    rows = ["file,emotion,couple,trial,actor"]
+    for t in make_tiny_dataset():
+        for a, m in enumerate(t.actors):
+            bm.write_bvh(m, folder / f"{t.name}_{a}.bvh")
+            rows.append(f"{t.name}_{a}.bvh,{t.labels['emotion']},c1,{t.name},{a}")
+    (folder / "labels.csv").write_text("\n".join(rows) + "\n")
+    data = load_data(str(folder), 5.0)
+    bm.HGPDM(latent_dim=3, interaction_dim=3).fit(data, max_iter=40, progress=False).save(
+        tmp_path / "m.npz")
+    capsys.readouterr()
+    code = main(["evaluate", str(tmp_path / "m.npz"), str(folder), "--refit-iter", "5",
+                 "--calibrate", "--save-calibrated", str(tmp_path / "c.npz")])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "label probabilities: ECE" in out and "recording effect" in out
+    model = bm.load(tmp_path / "c.npz")
+    assert model.calibration["effective_frames"] > 0
+    assert f"{model.calibration['effective_frames']:.3g}" in out

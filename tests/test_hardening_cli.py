@@ -161,6 +161,12 @@ CASES = {
     "evaluate other levels": (["evaluate", "m.npz", "builtin:handshakes"],
                               "emotion levels ['happy', 'sad']"),
     "evaluate Latin-1 labels.csv": (["evaluate", "m.npz", "latin"], "must be UTF-8"),
+    "evaluate --save-calibrated without --calibrate": (
+        ["evaluate", "m.npz", "builtin:handshakes", "--save-calibrated", "c.npz"],
+        "needs --calibrate"),
+    "evaluate --save-calibrated DIR": (["evaluate", "m.npz", "builtin:handshakes",
+                                        "--calibrate", "--save-calibrated", "adir"],
+                                       "is a folder"),
     "demo --out FILE": (["demo", "--quick", "--out", "afile"], "is a file"),
     "demo --out under a file": (["demo", "--quick", "--out", "afile/demo"], "afile is a file"),
     "demo --seed -1": (["demo", "--quick", "--seed", "-1", "--out", "d"], "--seed"),

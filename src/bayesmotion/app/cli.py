@@ -144,7 +144,12 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("data")
     e.add_argument("--refit-iter", type=int, default=100)
     e.add_argument("--calibrate", action="store_true",
-                   help="also calibrate the likelihood power on the folds (cross-fitted)")
+                   help="also calibrate the label probabilities (the effective frames per "
+                        "recording) and the coordinates' likelihood power on the folds "
+                        "(cross-fitted)")
+    e.add_argument("--save-calibrated", default=None, metavar="OUT",
+                   help="with --calibrate: write the model with its label probabilities "
+                        "calibrated on all folds to OUT (infer uses it)")
     e.add_argument("--emotion-starts", choices=("nearest", "levels", "vertices"),
                    default="vertices",
                    help="projection starts of every inference (see 'infer')")
@@ -347,6 +352,10 @@ def _cmd_evaluate(a):
     validate.integer(a.refit_iter, "--refit-iter", low=1)
     if a.json is not None:
         validate.output_file(a.json, "--json")
+    if a.save_calibrated is not None:
+        if not a.calibrate:
+            raise BayesmotionError("--save-calibrated needs --calibrate")
+        validate.output_file(a.save_calibrated, "--save-calibrated")
     m = load(a.model)
     _check_data(a.data, None)
     ds = load_data(a.data, m.fps)
@@ -369,6 +378,17 @@ def _cmd_evaluate(a):
               f"{c['likelihood_power']['median']:.3g}): {hpd(c)}ellipsoid {c['coverage']:.2f}, "
               f"accuracy {c['accuracy']:.2f}; for new clips use --likelihood-power "
               f"{c['likelihood_power_all_trials']:.3g}")
+    lab = lambda c: (f"ECE {c['ece']:.3f}, 90% label sets cover {c['label_set_coverage']:.2f}, "
+                     f"wrong with P >= 0.99 in {c['confident_wrong']:.2f}")
+    print(f"label probabilities: {lab(res['label_calibration'])}")
+    if "evidence" in res:
+        ev = res["evidence"]
+        print(f"label probabilities with the recording effect (n_eff from the other folds, "
+              f"median {ev['n_eff']['median']:.3g} frames): {lab(ev['label_calibration'])}")
+        if a.save_calibrated:
+            m.calibrate_evidence(res).save(a.save_calibrated)
+            print(f"calibrated model (n_eff {ev['n_eff_all_trials']:.3g} frames) written to "
+                  f"{a.save_calibrated}")
     if "baselines" in res:
         print("baselines: " + ", ".join(f"{k} {v:.2f}" for k, v in res["baselines"].items()))
     if a.json:
