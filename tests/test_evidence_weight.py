@@ -198,3 +198,22 @@ def test_cli_evaluate_calibrates_and_saves_the_model(tmp_path, capsys):
     model = bm.load(tmp_path / "c.npz")
     assert model.calibration["effective_frames"] > 0
     assert f"{model.calibration['effective_frames']:.3g}" in out
+
+
+def test_minus_infinite_evidence_is_probability_zero():
+    p = level_posterior([-np.inf, -3.0, -5.0], np.zeros(3), 0.5)
+    assert p[0] == 0.0 and p[1:].sum() == pytest.approx(1.0)
+    with pytest.raises(BayesmotionError, match="at least one finite"):
+        level_posterior([-np.inf, -np.inf], np.zeros(2))
+
+
+def test_a_flat_answer_keeps_the_label_the_evidence_favours():
+    """A clip shrunk all the way to a flat prior ties every level; its label is not the first
+    level but the one its evidence chose."""
+    from bayesmotion.emotion.result import EmotionPosterior
+
+    s = np.full((1, 4, 3), 1 / 3)
+    ep = EmotionPosterior(("a", "b", "c"), s, {}, np.zeros((1, 4)),
+                          info={"probabilities_in_distribution": [0.1, 0.2, 0.7]},
+                          label_probabilities=np.full(3, 1 / 3))
+    assert ep.label == "c" and ep.label_set(0.9) == ("a", "b", "c")

@@ -141,3 +141,34 @@ def test_training_clips_pass_and_foreign_motion_is_flagged(tiny_model):
         post = bm.infer_emotion(tiny_model, still, n_steps=60)
     d = post.info["ood"]["dynamics"]
     assert post.out_of_distribution and d["median_z2"] > d["threshold"]
+
+
+def test_short_clips_are_compared_with_training_stretches_of_their_length():
+    """An online prefix of an ordinary recording: against whole recordings its summary (a
+    few frames' mean and sd) looks foreign; against 10-frame stretches it does not."""
+    rng = np.random.default_rng(3)
+    train = [_walk(rng, T=60, amp=rng.uniform(0.9, 1.1), freq=0.2) for _ in range(10)]
+    Y = (np.concatenate(train),)
+    tof = np.repeat(np.arange(10), 60)
+    prefix = [_walk(rng, T=60, freq=0.2)[:10]]
+    whole = recording_distance(recording_reference(Y, tof), prefix)
+    windows = recording_reference(Y, tof, window=10)
+    assert windows["summaries"].shape[0] == 60  # six 10-frame stretches per recording
+    # a stretch is held out with its whole recording
+    assert np.all(np.isfinite(windows["held_out_nearest"]))
+    short = recording_distance(windows, prefix)
+    assert whole["beyond"] and not short["beyond"]
+    assert 0 <= short["nearest_recording"] < 10
+
+
+def test_non_finite_clips_are_out_of_distribution():
+    ref = {"bottom": _reference(1.0, 3.0), "dynamics": _reference(0.5, 2.0)}
+    a = assess(ref, {"bottom": np.array([np.nan, np.nan, 1.0]), "dynamics": np.ones(3)})
+    assert a["out_of_distribution"]
+    rng = np.random.default_rng(0)
+    Y = (np.concatenate([_walk(rng) for _ in range(4)]),)
+    rec = recording_distance(recording_reference(Y, np.repeat(np.arange(4), 40)),
+                             [np.full((40, 4), np.nan)])
+    assert rec["beyond"] and in_distribution_weight(assess(ref, {"bottom": np.ones(3),
+                                                                 "dynamics": np.ones(3)},
+                                                           rec)) == 0.0

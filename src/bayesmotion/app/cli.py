@@ -313,7 +313,11 @@ def _cmd_infer(a):
                           "emotion_starts": ep.info["emotion_starts"],
                           "map_objective": ep.info["map_objective"],
                           "out_of_distribution": ep.out_of_distribution,
-                          "ood_score": ep.info["ood"]["score"]}))
+                          "ood_score": ep.info["ood"]["score"],
+                          "in_distribution_weight": ep.info.get("in_distribution_weight"),
+                          "effective_frames": ep.info["effective_frames"]
+                          if ep.info["effective_frames"] != float("inf") else None,
+                          "evidence_calibrated": ep.info["evidence_calibrated"]}))
     else:
         print(ep)
 
@@ -355,6 +359,9 @@ def _cmd_evaluate(a):
     if a.save_calibrated is not None:
         if not a.calibrate:
             raise BayesmotionError("--save-calibrated needs --calibrate")
+        if a.emotion_starts != "vertices":
+            raise BayesmotionError("--save-calibrated needs the levels' evidence: "
+                                   "--emotion-starts vertices (the default)")
         validate.output_file(a.save_calibrated, "--save-calibrated")
     m = load(a.model)
     _check_data(a.data, None)

@@ -205,7 +205,9 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             model, s in {0, .25, .5, .75, 1}) its mean absolute error in s is 0.030
             (neutral to happy) and 0.065 (sad to angry), against 0.054 and 0.45 with
             "nearest". With "vertices" ``info`` holds ``level_log_evidence``,
-            ``level_probabilities`` and the Laplace details per level.
+            ``level_probabilities`` (the plain evidence's posterior; ``probabilities`` adds
+            the recording effect and the out-of-distribution shrinkage) and the Laplace
+            details per level.
         effective_frames: n_eff, how many of the clip's frames count as independent evidence
             for its label (:mod:`bayesmotion.emotion.evidence`): the label probabilities
             raise the levels' evidence to the power n_eff / (n_eff + T)
@@ -437,10 +439,13 @@ def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:
         reference = training_reference(P, model.data.trial_of_frame, model.spec.order)
     dyn = styles_from(params, fixed, tuple(model.spec.dynamics_factors), P.level_vectors)
     z2 = clip_z2(P, np.asarray(params["X"])[:, :T], np.asarray(params["I"])[:T], Ys, dyn)
-    if "recording_reference" not in model._cache:
-        model._cache["recording_reference"] = recording_reference(model.data.Y,
-                                                                  model.data.trial_of_frame)
-    ref = model._cache["recording_reference"]
+    # a clip shorter than the typical training recording is compared with stretches of its
+    # own length
+    window = T if T < np.median(model.data.lengths) else None
+    key = ("recording_reference", window)
+    if key not in model._cache:
+        model._cache[key] = recording_reference(model.data.Y, model.data.trial_of_frame, window)
+    ref = model._cache[key]
     return assess(reference, z2, None if ref is None else recording_distance(ref, Ys))
 
 

@@ -17,9 +17,15 @@ scored: the bottom layer (how well the poses are reconstructed: a foreign rig, i
 poses) and the dynamics layer (how well the latent trajectory follows the learned dynamics:
 motionless or foreign motion).
 
-A clip is flagged out of distribution when, in either layer, the median of its frames' z2
-exceeds the 99th percentile of the held-out training frames' z2: more than half of its frames
-are less likely than 99% of the frames of held-out training recordings.
+Each layer is also scored by its negative log predictive density per output column,
+nlpd_t = (z2_t + log(2 pi (var_t + noise))) / 2, against the training frames' held-out values:
+a clip projected far from every training latent has a wide predictive, so its residuals look
+ordinary while its density does not.
+
+A clip is flagged out of distribution when, in any of these four statistics, the median of its
+frames exceeds the 99th percentile of the held-out training frames: more than half of its
+frames are less likely than 99% of the frames of held-out training recordings; or when the
+recording check below exceeds its limit. A non-finite value counts as beyond.
 
 Frame by frame, a clip of another action can look ordinary: its latents are fitted to it, and
 a flexible pose space (the 18 affective features) reconstructs a bow as well as a walk. The
@@ -27,7 +33,8 @@ recording as a whole does not: its summary -- per pose channel, the mean, the sd
 absolute frame-to-frame change -- is compared with the training recordings' (each channel
 scaled by its sd across them). With d the root-mean-square distance to the nearest training
 recording and d_ref the largest such distance of a training recording to the others (each
-held out in turn), r = d / d_ref. A new recording like the training ones exceeds every
+held out in turn), r = d / d_ref. A clip shorter than the training recordings is compared with
+their non-overlapping stretches of its own length instead. A new recording like the training ones exceeds every
 training recording's distance (r > 1) with probability at most 1 / (n + 1) for n training
 recordings (exchangeability: a conformal p-value); it is flagged at r > 1.5. On the walk model
 of the shared Bandai clips (12 walks; ``benchmarks/results/bandai_inference.json``) the
@@ -67,8 +74,10 @@ STATISTICS = ("bottom", "dynamics", "bottom_density", "dynamics_density")
 
 
 class OutOfDistributionWarning(UserWarning):
-    """The clip lies outside the training data: its emotion probabilities describe the model's
-    nearest explanation, not evidence about the clip."""
+    """The clip lies outside the training data: its emotion probabilities are shrunk towards
+    the prior (``info["in_distribution_weight"]``); the unshrunk ones, in
+    ``info["probabilities_in_distribution"]``, are the model's nearest explanation, not
+    evidence about the clip."""
 
 
 def held_out_z2(fit: LayerFit, groups: np.ndarray) -> np.ndarray:
@@ -171,6 +180,8 @@ def assess(reference: dict, z2: dict[str, np.ndarray], recording: dict | None = 
     names = [n for n in STATISTICS if n in reference and n in z2]
     for name in names:
         ref, z = reference[name], z2[name]
+        # a non-finite frame value (NaN poses) counts as beyond, never as ordinary
+        z = np.where(np.isfinite(z), z, np.inf)
         med = float(np.median(z)) if z.size else float(ref["median"])
         if name.endswith("_density"):
             ratio = float(np.exp(min(med - ref["median"], 700.0)))
@@ -209,40 +220,58 @@ def recording_summary(Ys) -> np.ndarray:
     return np.concatenate(parts)
 
 
-def recording_reference(Y, trial_of_frame) -> dict | None:
+def recording_reference(Y, trial_of_frame, window: int | None = None) -> dict | None:
     """The training recordings' summaries, the channels' scales and each recording's distance
     to its nearest other recording (None with fewer than 3 recordings: no reference).
 
     Args:
         Y: per actor (N, D_a) training poses; trial_of_frame: (N,) recording of every frame.
+        window: compare clips of this many frames: each training recording is cut into
+            non-overlapping windows of that length (a shorter recording is one window), so a
+            short clip (an online prefix) is compared with stretches of its own length, whose
+            means and sds scatter as much as its own; None: whole recordings.
     """
     tof = np.asarray(trial_of_frame)
     ids = np.unique(tof)
     if ids.size < 3:
         return None
-    S = np.stack([recording_summary([np.asarray(y)[tof == r] for y in Y]) for r in ids])
+    parts, owner = [], []
+    for r in ids:
+        rows = np.flatnonzero(tof == r)
+        w = rows.size if window is None else max(int(window), 2)
+        for start in range(0, max(rows.size - w, 0) + 1, w):
+            sel = rows[start:start + w]
+            parts.append(recording_summary([np.asarray(y)[sel] for y in Y]))
+            owner.append(r)
+    S = np.stack(parts)
+    owner = np.asarray(owner)
     scale = S.std(0)
     scale = np.where(scale > 1e-9 * max(float(scale.max()), 1e-300), scale, np.inf)
     Z = S / scale
     D = np.sqrt(np.mean((Z[:, None] - Z[None]) ** 2, -1))
-    np.fill_diagonal(D, np.inf)
+    D[owner[:, None] == owner[None]] = np.inf  # each held out with its whole recording
     nearest = D.min(1)
-    return {"summaries": S, "scale": scale, "held_out_nearest": nearest,
-            "largest": float(nearest.max())}
+    return {"summaries": S, "scale": scale, "owner": owner, "held_out_nearest": nearest,
+            "largest": float(nearest.max()), "window": window}
 
 
 def recording_distance(reference: dict, Ys) -> dict:
-    """The clip's distance to its nearest training recording relative to the reference's
-    largest (module docstring): ``{"nearest_distance", "reference_largest", "ratio",
-    "nearest_recording" (index), "p_value" (conformal, (1 + #{training >= d}) / (n + 1)),
-    "beyond" (ratio > RECORDING_FLAG)}``."""
+    """The clip's distance to its nearest training recording (window) relative to the
+    reference's largest (module docstring): ``{"nearest_distance", "reference_largest",
+    "ratio", "nearest_recording" (index), "p_value" (conformal, (1 + #{training >= d}) /
+    (n + 1)), "beyond" (ratio > RECORDING_FLAG)}``; a non-finite summary (NaN poses) is beyond.
+    """
     z = recording_summary(Ys) / reference["scale"]
     d = np.sqrt(np.mean((reference["summaries"] / reference["scale"] - z) ** 2, -1))
+    if not np.all(np.isfinite(z)) or not np.any(np.isfinite(d)):
+        return {"nearest_distance": float("inf"), "reference_largest": reference["largest"],
+                "ratio": float("inf"), "nearest_recording": -1,
+                "p_value": 1.0 / (reference["held_out_nearest"].size + 1), "beyond": True}
     k = int(np.argmin(d))
     near = reference["held_out_nearest"]
     ratio = float(d[k] / reference["largest"]) if reference["largest"] > 0 else float("inf")
     return {"nearest_distance": float(d[k]), "reference_largest": reference["largest"],
-            "ratio": ratio, "nearest_recording": k,
+            "ratio": ratio, "nearest_recording": int(reference["owner"][k]),
             "p_value": float((1 + np.sum(near >= d[k])) / (near.size + 1)),
             "beyond": bool(ratio > RECORDING_FLAG)}
 
@@ -255,5 +284,6 @@ def in_distribution_weight(assessment: dict) -> float:
     inside = min(1.0 - assessment[n]["beyond"] for n in STATISTICS if n in assessment)
     w = float(np.clip(inside / REFERENCE_QUANTILE, 0.0, 1.0))
     if "recording" in assessment:
-        w = min(w, float(np.clip(2.0 - assessment["recording"]["ratio"], 0.0, 1.0)))
-    return w
+        r = assessment["recording"]["ratio"]
+        w = min(w, float(np.clip(2.0 - r, 0.0, 1.0)) if np.isfinite(r) else 0.0)
+    return w if np.isfinite(w) else 0.0

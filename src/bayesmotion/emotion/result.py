@@ -22,15 +22,19 @@ class EmotionPosterior:
         latents: X (A, T, Q_X), I (T, Q_I) at the MAP, with X_sd, I_sd (diagonal Laplace).
         log_prob: (n_chains, n_draws). info: n_frames, mirrored (per actor: the model's
             canonical side mirrored the clip), seconds, acceptance, tau, map objective,
-            likelihood_power.
+            likelihood_power; with level evidence also level_log_evidence,
+            level_probabilities, effective_frames, evidence_calibrated, evidence_power,
+            probabilities_in_distribution, in_distribution_weight, level_prior; ood.
         log_likelihood: emotion coordinates (n, K) -> (n,) the clip's untempered
             log-likelihood (closed simplex), when the emotion was the only inferred factor of a
             single model; None otherwise (pooled draws, or the couple inferred too). It gives the
             highest-density credible regions (:meth:`hpd_contains`).
         prior_concentration: the emotion's Dirichlet prior.
         out_of_distribution: the clip lies outside the training data
-            (:mod:`bayesmotion.emotion.ood`; the evidence is in ``info["ood"]``): its
-            probabilities are the model's nearest explanation, not evidence about the clip.
+            (:mod:`bayesmotion.emotion.ood`; the evidence is in ``info["ood"]``): its label
+            probabilities are shrunk towards the prior (``info["in_distribution_weight"]``),
+            and its coordinates are the model's nearest explanation, not evidence about the
+            clip.
         label_probabilities: (K,) the posterior over which level generated the clip
             (``emotion_starts="vertices"``: the levels' evidence weighed by the effective
             frames per recording, :mod:`bayesmotion.emotion.evidence`, then shrunk towards the
@@ -189,7 +193,14 @@ class EmotionPosterior:
 
     @property
     def label(self) -> str:
-        return self.levels[int(np.argmax(self.probabilities))]
+        """The most probable level; ties (an answer shrunk to a flat prior) go to the level the
+        evidence favours (``info["probabilities_in_distribution"]``)."""
+        p = self.probabilities
+        inner = self.info.get("probabilities_in_distribution")
+        if inner is None:
+            return self.levels[int(np.argmax(p))]
+        top = np.flatnonzero(p >= p.max() - 1e-12 * max(p.max(), 1e-300))
+        return self.levels[int(top[np.argmax(np.asarray(inner)[top])])]
 
     @property
     def coordinate_entropy(self) -> float:
@@ -266,9 +277,16 @@ def pool_posteriors(parts: list[EmotionPosterior]) -> EmotionPosterior:
     info.update(seconds=sum(p.info["seconds"] for p in parts), n_model_draws=len(parts),
                 n_samples=sum(p.info["n_samples"] for p in parts),
                 ess=sum(p.info["ess"] for p in parts))
-    # the mixture over draws: its level probabilities are the draws' mean
+    # the mixture over draws: its level probabilities are the draws' mean, and so are the
+    # unshrunk ones and the evidence weight; every draw's out-of-distribution check is kept
     probs = (np.mean([p.label_probabilities for p in parts], axis=0)
              if all(p.label_probabilities is not None for p in parts) else None)
+    if probs is not None:
+        info["probabilities_in_distribution"] = np.mean(
+            [p.info["probabilities_in_distribution"] for p in parts], axis=0).tolist()
+        info["in_distribution_weight"] = float(np.mean(
+            [p.info["in_distribution_weight"] for p in parts]))
+    info["ood_per_draw"] = [p.info.get("ood") for p in parts]
     return EmotionPosterior(first.levels, cat([p.samples for p in parts]), first.latents,
                             cat([p.log_prob for p in parts]), first.couple_levels,
                             None if first.couple_samples is None else cat(

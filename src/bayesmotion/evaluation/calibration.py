@@ -240,8 +240,7 @@ def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
         raise BayesmotionError(f"q must lie in (0, 1), got {q}")
     n, K = p.shape
     order = np.argsort(-p, 1, kind="stable")
-    cum = np.cumsum(np.take_along_axis(p, order, 1), 1)
-    size = np.minimum(np.argmax(cum >= q - 1e-12, 1) + 1, K)
+    size = np.array([label_set_size(row, q) for row in p])
     inside = np.array([t[i] in order[i, :size[i]] for i in range(n)])
     right = np.argmax(p, 1) == t
     onehot = np.eye(K)[t]
@@ -255,6 +254,13 @@ def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
             "confident_threshold": confident,
             "log_score": float(np.mean(np.log(np.maximum(p[np.arange(n), t], 1e-300)))),
             "brier": float(np.mean(np.sum((p - onehot) ** 2, 1)))}
+
+
+def label_set_size(probabilities, q: float) -> int:
+    """Size of the smallest set of levels whose probabilities add up to at least ``q`` (all of
+    them when rounding keeps the total below ``q``), as :meth:`EmotionPosterior.label_set`."""
+    p = np.sort(np.asarray(probabilities, dtype=np.float64))[::-1]
+    return int(min(np.searchsorted(np.cumsum(p), q - 1e-12) + 1, p.size))
 
 
 def _label_args(probabilities, truth) -> tuple[np.ndarray, np.ndarray]:

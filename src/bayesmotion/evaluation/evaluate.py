@@ -38,6 +38,7 @@ from bayesmotion.evaluation.calibration import (
     calibrate_likelihood_power,
     hpd_power_from_levels,
     label_calibration,
+    label_set_size,
     tempered_hpd_levels,
     tempering_proposal,
 )
@@ -120,7 +121,9 @@ def _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs) -> dict:
 def _evidence_calibrated(rows, truth_idx, q) -> dict:
     """Label probabilities with n_eff (the effective frames per recording,
     :mod:`bayesmotion.emotion.evidence`) cross-fitted: trial i's from the other trials' plain
-    level evidence; each row gets ``evidence_calibrated`` {n_eff, probabilities, label_set}.
+    level evidence; each row gets ``evidence_calibrated`` {n_eff, probabilities,
+    label_set_size}. The other trials' evidence comes from fold models that saw trial i, the
+    usual bias of cross-fitting on leave-one-out folds.
     Returns the calibrated label metrics (:func:`label_calibration`) and n_eff fitted on all
     trials (what :meth:`FittedHGPDM.calibrate_evidence` stores)."""
     L = np.array([r["level_log_evidence"] for r in rows], dtype=np.float64)
@@ -136,10 +139,8 @@ def _evidence_calibrated(rows, truth_idx, q) -> dict:
         p_in = level_posterior(L[i], lp[i], evidence_power(T[i], n_eff))
         p = w[i] * p_in + (1 - w[i]) * np.exp(lp[i])
         probs.append(p)
-        order = np.argsort(-p, kind="stable")
-        size = int(np.searchsorted(np.cumsum(p[order]), q - 1e-12) + 1)
         r["evidence_calibrated"] = {"n_eff": n_eff, "probabilities": p.tolist(),
-                                    "label_set_size": min(size, p.size)}
+                                    "label_set_size": label_set_size(p, q)}
     n_eff = np.array([r["evidence_calibrated"]["n_eff"] for r in rows])
     return {"label_calibration": label_calibration(np.array(probs), truth_idx, q),
             "n_eff": {"median": float(np.median(n_eff)), "min": float(n_eff.min()),
@@ -233,13 +234,19 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
     taken = {"styles", "couple", "n_steps", "seed", "latent_uncertainty"} & set(infer_kwargs)
     if calibrate and "likelihood_power" in infer_kwargs:
         taken.add("likelihood_power")
+    if calibrate and "effective_frames" in infer_kwargs:
+        taken.add("effective_frames")  # the calibration needs the plain evidence
     if taken:
         raise BayesmotionError(f"infer_kwargs may not set {sorted(taken)}: leave_one_out sets "
                                f"them")
     if calibrate not in (True, False, "labels"):
         raise BayesmotionError(f"calibrate must be True, False or 'labels', got {calibrate!r}")
     if calibrate and len(dataset) < 3:
-        raise BayesmotionError(f"calibrate=True needs at least 3 trials, got {len(dataset)}")
+        raise BayesmotionError(f"calibrate={calibrate!r} needs at least 3 trials, got "
+                               f"{len(dataset)}")
+    if calibrate and infer_kwargs.get("emotion_starts", "vertices") != "vertices":
+        raise BayesmotionError("calibrating the label probabilities needs the levels' evidence: "
+                               "emotion_starts='vertices'")
     # the baselines first: they are cheap, and a skeleton their features cannot read must fail
     # before any fit, not after the folds' refits
     b, b_probs = _baselines(dataset, "emotion") if baselines else (None, None)
@@ -306,7 +313,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
     truth_idx = np.array([levels.index(t) for t in true])
     out["label_calibration"] = label_calibration([r["probabilities"] for r in rows], truth_idx,
                                                  q)
-    if calibrate and all(r["level_log_evidence"] is not None for r in rows):
+    if calibrate:
         out["evidence"] = _evidence_calibrated(rows, truth_idx, q)
     if calibrate is True:
         try:

@@ -4,7 +4,8 @@ Layout of the archive (a zip of ``<name>.npy`` members, each a plain numeric arr
 
 * ``__meta__``: UTF-8 JSON as uint8 -- format name and version, package version, the model
   specification and priors, label levels, codecs (skeleton, root mode), trial records (names,
-  labels, lengths), fit diagnostics;
+  labels, lengths), fit diagnostics, and the emotion evidence's calibration (``calibration``,
+  empty when not calibrated);
 * ``param/<key>``: unconstrained parameters; ``Y/<a>``: training poses per actor;
   ``onehot/<factor>``; ``lengths``; ``codec<a>/...``: normalisation arrays;
   ``anchor/<r>/<a>`` and ``offsets/<r>/<a>``: per-trial decoding anchors and bone offsets.

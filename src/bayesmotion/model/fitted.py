@@ -151,7 +151,10 @@ class FittedHGPDM:
         return self.levels[factor].index(level)
 
     def with_params(self, params: dict) -> FittedHGPDM:
-        return replace(self, params={k: np.asarray(v) for k, v in params.items()})
+        """This model at other parameters; its evidence calibration, learned at the old ones,
+        is dropped."""
+        return replace(self, params={k: np.asarray(v) for k, v in params.items()},
+                       calibration={})
 
     def predictor(self):
         """Every layer conditioned on the training data at the MAP (cached: the parameters of
@@ -197,10 +200,13 @@ class FittedHGPDM:
         from bayesmotion.emotion.evidence import calibrate_effective_frames
 
         rows = held_out.get("trials") if isinstance(held_out, dict) else None
-        if not rows or any(r.get("level_log_evidence") is None for r in rows):
-            raise BayesmotionError("calibrate_evidence needs a leave_one_out result whose "
-                                   "trials kept their level evidence (emotion_starts="
-                                   "'vertices')")
+        need = ("true", "n_frames", "level_log_evidence", "level_prior",
+                "in_distribution_weight")
+        if not rows or "levels" not in held_out or any(
+                not isinstance(r, dict) or any(r.get(k) is None for k in need) for r in rows):
+            raise BayesmotionError(f"calibrate_evidence needs a leave_one_out result whose "
+                                   f"trials kept their level evidence (emotion_starts="
+                                   f"'vertices'; each trial with {', '.join(need)})")
         levels = list(held_out["levels"])
         if levels != list(self.levels.get("emotion", ())):
             raise BayesmotionError(f"the result's emotion levels {levels} are not the "
