@@ -34,11 +34,11 @@ absolute frame-to-frame change -- is compared with the training recordings' (eac
 scaled by its sd across them). With d the root-mean-square distance to the nearest training
 recording and d_ref the largest such distance of a training recording to the others (each
 held out in turn), r = d / d_ref. A clip shorter than the training recordings is compared with
-their non-overlapping stretches of its own length instead. A new recording like the training ones exceeds every
-training recording's distance (r > 1) with probability at most 1 / (n + 1) for n training
-recordings (exchangeability: a conformal p-value); it is flagged at r > 1.5. On the walk model
-of the shared Bandai clips (12 walks; ``benchmarks/results/bandai_inference.json``) the
-held-out walks-back scored r <= 1.0, every bow, wave, guide and dash 1.8-3.5.
+their non-overlapping stretches of its own length instead. A new recording like the training
+ones exceeds every training recording's distance (r > 1) with probability at most 1 / (n + 1)
+for n training recordings (exchangeability: a conformal p-value); it is flagged at r > 1.5.
+``benchmarks/results/bandai_inference.json`` (key ``foreign_actions``) sends the other actions
+of the shared Bandai clips through the model fitted on the 16 walks.
 
 The emotion answer weighs the model's evidence by how much of the clip looks like training
 data (:func:`in_distribution_weight`), w = min(w_frames, w_recording): with a fraction b of its
