@@ -82,6 +82,7 @@ def _foreign_actions(full, root, cfg, res, quick: bool) -> dict:
     import warnings
 
     from bayesmotion.datasets.bandai import bandai_files, load_bandai
+    from bayesmotion.emotion.evidence import calibrate_evidence
     from bayesmotion.emotion.infer import infer_emotion
     from bayesmotion.emotion.ood import OutOfDistributionWarning
 
@@ -89,7 +90,7 @@ def _foreign_actions(full, root, cfg, res, quick: bool) -> dict:
     if quick:
         others = others[:1]
     clips = load_bandai(root, content=others, fps=cfg["fps"])
-    model = full.calibrate_evidence(res)
+    model = calibrate_evidence(full, res)
     rows = []
     for t in clips:
         with warnings.catch_warnings():

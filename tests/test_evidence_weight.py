@@ -7,6 +7,7 @@ import pytest
 
 from bayesmotion.emotion.evidence import (
     calibrate_effective_frames,
+    calibrate_evidence,
     evidence_power,
     level_posterior,
 )
@@ -155,7 +156,7 @@ def test_calibrated_model_keeps_its_effective_frames_in_its_file(tiny_model, tmp
     for r in res["trials"]:  # cross-fitted: each trial's n_eff from the others alone
         assert r["evidence_calibrated"]["n_eff"] > 0
         assert sum(r["evidence_calibrated"]["probabilities"]) == pytest.approx(1.0)
-    model = tiny_model.calibrate_evidence(res)
+    model = calibrate_evidence(tiny_model, res)
     assert model.calibration["effective_frames"] == ev["n_eff_all_trials"]
     assert tiny_model.calibration == {}  # the original is unchanged
     model.save(tmp_path / "m.npz")
@@ -165,7 +166,7 @@ def test_calibrated_model_keeps_its_effective_frames_in_its_file(tiny_model, tmp
     assert ep.info["evidence_calibrated"]
     assert ep.info["effective_frames"] == model.calibration["effective_frames"]
     with pytest.raises(BayesmotionError, match="level evidence"):
-        tiny_model.calibrate_evidence({"trials": [{"level_log_evidence": None}]})
+        calibrate_evidence(tiny_model, {"trials": [{"level_log_evidence": None}]})
 
 
 @pytest.mark.slow

@@ -24,6 +24,7 @@ from bayesmotion.data.emotion import EMOTION_PRESETS, EmotionStyle, apply_emotio
 from bayesmotion.data.mirror import canonical_side, mirror, reframe, rest_frames
 from bayesmotion.datasets.bandai import load_bandai
 from bayesmotion.datasets.handshakes import load_cmu_handshake, load_handshakes
+from bayesmotion.emotion.evidence import calibrate_evidence
 from bayesmotion.emotion.infer import infer_emotion, infer_online
 from bayesmotion.emotion.result import EmotionPosterior
 from bayesmotion.errors import BayesmotionError, BVHError, ModelFileError, SkeletonMismatchError
@@ -39,8 +40,8 @@ __all__ = [
     "EMOTION_PRESETS", "HGPDM", "__version__", "BVHError", "BayesmotionError", "EmotionPosterior",
     "EmotionStyle", "FittedHGPDM", "ModelFileError", "Motion", "MotionDataset", "PoseCodec",
     "Posterior", "Priors", "Rollout", "Skeleton", "SkeletonMismatchError", "Transition", "Trial",
-    "apply_emotion", "canonical_side", "datasets", "forward_kinematics", "infer_emotion",
-    "infer_online", "load", "mirror", "reframe", "rest_frames",
+    "apply_emotion", "calibrate_evidence", "canonical_side", "datasets", "forward_kinematics",
+    "infer_emotion", "infer_online", "load", "mirror", "reframe", "rest_frames",
     "load_bandai", "load_cmu_handshake", "load_handshakes", "parse_bvh", "read_bvh",
     "sample_posterior", "write_bvh",
 ]

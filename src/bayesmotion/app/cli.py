@@ -37,6 +37,7 @@ from bayesmotion import validate
 from bayesmotion.app.demo import run_demo
 from bayesmotion.data.files import atomic_write_text
 from bayesmotion.datasets.loaders import load_data
+from bayesmotion.emotion.evidence import calibrate_evidence
 from bayesmotion.emotion.infer import infer_emotion
 from bayesmotion.emotion.ood import OutOfDistributionWarning
 from bayesmotion.errors import BayesmotionError
@@ -393,7 +394,7 @@ def _cmd_evaluate(a):
         print(f"label probabilities with the recording effect (n_eff from the other folds, "
               f"median {ev['n_eff']['median']:.3g} frames): {lab(ev['label_calibration'])}")
         if a.save_calibrated:
-            m.calibrate_evidence(res).save(a.save_calibrated)
+            calibrate_evidence(m, res).save(a.save_calibrated)
             print(f"calibrated model (n_eff {ev['n_eff_all_trials']:.3g} frames) written to "
                   f"{a.save_calibrated}")
     if "baselines" in res:

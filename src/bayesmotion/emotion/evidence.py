@@ -140,3 +140,39 @@ def calibrate_effective_frames(log_evidence, n_frames, truth, log_prior=None,
             "log_score_best": best / n,
             "log_score_plain": float(scores(np.ones(n)).mean()),
             "n_clips": int(n), "grid": grid.tolist(), "log_scores": (per / n).tolist()}
+
+
+def calibrate_evidence(model, held_out):
+    """``model`` with its emotion evidence calibrated on recordings held out of its fit.
+
+    Args:
+        model: a FittedHGPDM.
+        held_out: a :func:`bayesmotion.evaluation.evaluate.leave_one_out` result on the
+            model's training data (each trial inferred by a model fitted without it), whose
+            trials' plain level evidence sets n_eff, the frames one recording's evidence is
+            worth (:func:`calibrate_effective_frames`).
+    Returns:
+        a new FittedHGPDM whose ``calibration`` holds n_eff (``infer_emotion`` uses it, and
+        model files keep it); ``model`` is unchanged.
+    """
+    rows = held_out.get("trials") if isinstance(held_out, dict) else None
+    need = ("true", "n_frames", "level_log_evidence", "level_prior", "in_distribution_weight")
+    if not rows or "levels" not in held_out or any(
+            not isinstance(r, dict) or any(r.get(k) is None for k in need) for r in rows):
+        raise BayesmotionError(f"calibrate_evidence needs a leave_one_out result whose trials "
+                               f"kept their level evidence (emotion_starts='vertices'; each "
+                               f"trial with {', '.join(need)})")
+    levels = list(held_out["levels"])
+    own = list(model.levels.get("emotion", ()))
+    if levels != own:
+        raise BayesmotionError(f"the result's emotion levels {levels} are not the model's "
+                               f"{own}")
+    cal = calibrate_effective_frames([r["level_log_evidence"] for r in rows],
+                                     [r["n_frames"] for r in rows],
+                                     np.array([levels.index(r["true"]) for r in rows]),
+                                     np.log([r["level_prior"] for r in rows]),
+                                     [r["in_distribution_weight"] for r in rows])
+    return model.with_calibration({
+        "effective_frames": cal["n_eff"], "log_score": cal["log_score"],
+        "log_score_plain": cal["log_score_plain"], "n_recordings": cal["n_clips"],
+        "method": "leave-one-recording-out log score"})

@@ -213,8 +213,8 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             raise the levels' evidence to the power n_eff / (n_eff + T)
             (``emotion_starts="vertices"``). None: the model's calibrated value
             (``model.calibration["effective_frames"]``, set by
-            :meth:`FittedHGPDM.calibrate_evidence`), else infinity -- the plain evidence,
-            whose probabilities are overconfident on recordings unlike the training ones
+            :func:`bayesmotion.emotion.evidence.calibrate_evidence`), else infinity -- the plain
+            evidence, whose probabilities are overconfident on recordings unlike the training ones
             (``info["evidence_calibrated"]`` says which).
     Returns:
         EmotionPosterior.

@@ -125,7 +125,7 @@ def _evidence_calibrated(rows, truth_idx, q) -> dict:
     label_set_size}. The other trials' evidence comes from fold models that saw trial i, the
     usual bias of cross-fitting on leave-one-out folds.
     Returns the calibrated label metrics (:func:`label_calibration`) and n_eff fitted on all
-    trials (what :meth:`FittedHGPDM.calibrate_evidence` stores)."""
+    trials (what :func:`bayesmotion.emotion.evidence.calibrate_evidence` stores)."""
     L = np.array([r["level_log_evidence"] for r in rows], dtype=np.float64)
     T = np.array([r["n_frames"] for r in rows])
     lp = np.log(np.array([r["level_prior"] for r in rows], dtype=np.float64))
@@ -191,7 +191,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
             probabilities: n_eff, the frames one recording's evidence is worth
             (:mod:`bayesmotion.emotion.evidence`), from the other trials' plain level evidence,
             under ``"evidence"`` (with ``n_eff_all_trials`` for
-            :meth:`FittedHGPDM.calibrate_evidence`). The coordinates:
+            :func:`bayesmotion.emotion.evidence.calibrate_evidence`). The coordinates:
             also infer each held-out trial from a tempered posterior whose likelihood
             power is calibrated on the *other* trials' plain posteriors (without trial i:
             :func:`calibrate_hpd_power` on their clip likelihoods over the simplex when every

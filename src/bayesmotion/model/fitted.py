@@ -64,9 +64,10 @@ class FittedHGPDM:
         trials: per training trial, a TrialRecord.
         fps: frame rate of the training data.
         diagnostics: convergence diagnostics of the fit.
-        calibration: what :meth:`calibrate_evidence` learned from recordings held out of the
-            fit: ``effective_frames`` (n_eff, :mod:`bayesmotion.emotion.evidence`), the log
-            scores and the number of recordings; empty when not calibrated.
+        calibration: what :func:`bayesmotion.emotion.evidence.calibrate_evidence` learned from
+            recordings held out of the fit: ``effective_frames`` (n_eff,
+            :mod:`bayesmotion.emotion.evidence`), the log scores and the number of recordings;
+            empty when not calibrated.
     """
 
     spec: HGPDM
@@ -185,41 +186,16 @@ class FittedHGPDM:
         """
         return generate(self, emotion, couple, n_frames, n_samples, start, seed, **styles)
 
-    def calibrate_evidence(self, held_out) -> FittedHGPDM:
-        """This model with its emotion evidence calibrated on recordings held out of its fit.
-
-        Args:
-            held_out: a :func:`bayesmotion.evaluation.leave_one_out` result on this model's
-                training data (each trial inferred by a model fitted without it), whose
-                trials' plain level evidence sets n_eff, the frames one recording's evidence
-                is worth (:func:`bayesmotion.emotion.evidence.calibrate_effective_frames`).
-        Returns:
-            a new FittedHGPDM whose ``calibration`` holds n_eff; ``infer_emotion`` uses it, and
-            model files keep it.
+    def with_calibration(self, calibration: dict) -> FittedHGPDM:
+        """This model with the emotion evidence's calibration ``calibration`` (at least
+        ``effective_frames`` > 0; made by :func:`bayesmotion.emotion.evidence.calibrate_evidence`).
         """
-        from bayesmotion.emotion.evidence import calibrate_effective_frames
-
-        rows = held_out.get("trials") if isinstance(held_out, dict) else None
-        need = ("true", "n_frames", "level_log_evidence", "level_prior",
-                "in_distribution_weight")
-        if not rows or "levels" not in held_out or any(
-                not isinstance(r, dict) or any(r.get(k) is None for k in need) for r in rows):
-            raise BayesmotionError(f"calibrate_evidence needs a leave_one_out result whose "
-                                   f"trials kept their level evidence (emotion_starts="
-                                   f"'vertices'; each trial with {', '.join(need)})")
-        levels = list(held_out["levels"])
-        if levels != list(self.levels.get("emotion", ())):
-            raise BayesmotionError(f"the result's emotion levels {levels} are not the "
-                                   f"model's {list(self.levels.get('emotion', ()))}")
-        cal = calibrate_effective_frames([r["level_log_evidence"] for r in rows],
-                                         [r["n_frames"] for r in rows],
-                                         np.array([levels.index(r["true"]) for r in rows]),
-                                         np.log([r["level_prior"] for r in rows]),
-                                         [r["in_distribution_weight"] for r in rows])
-        return replace(self, calibration={
-            "effective_frames": cal["n_eff"], "log_score": cal["log_score"],
-            "log_score_plain": cal["log_score_plain"], "n_recordings": cal["n_clips"],
-            "method": "leave-one-recording-out log score"})
+        n_eff = calibration.get("effective_frames") if isinstance(calibration, dict) else None
+        if isinstance(n_eff, bool) or not isinstance(n_eff, int | float) or not n_eff > 0 \
+                or not np.isfinite(n_eff):
+            raise BayesmotionError(f"a calibration needs effective_frames, a finite number > 0; "
+                                   f"got {n_eff!r}")
+        return replace(self, calibration=dict(calibration))
 
     # ------------------------------------------------------------------ files
     def save(self, path) -> None:
