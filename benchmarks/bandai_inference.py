@@ -16,14 +16,20 @@ the level chosen by the Laplace evidence of a projection with the emotion held a
 (``emotion_starts="vertices"``). Baselines on the same folds: the affective-feature classifier
 (Bhattacharya et al.'s 18 pose features, logistic regression), Ho et al.'s relative-strength
 ranking (one RankSVM per emotion on keyframe features) and a mean-pose nearest neighbour.
-Targets: accuracy >= 75% (the human rate on natural handshakes in Taubert et al.'s Table 1 is
-74.5%) and not below the affective features. The JSON goes to ``results/bandai_inference.json``.
+Targets (issue: honest inference): accuracy >= 85% on the walks (>= 75% on all 40 clips,
+``--all-contents``) and never below the best baseline; 90% label sets holding the truth in
+85-95% of the clips; ECE <= 0.05; wrong answers with P >= 0.99 in <= 2%; under 2 s per clip.
+The label probabilities are reported plain (the levels' Laplace evidence, with the
+out-of-distribution shrinkage) and with the recording effect (``bayesmotion.emotion.evidence``,
+n_eff cross-fitted from the other folds). The walks' run then sends the other actions (run, dash,
+bow, bye, byebye, guide) through the walk model, calibrated on the folds (``foreign_actions``).
+The JSON goes to ``results/bandai_inference.json`` (``results/bandai_inference_all.json``).
 
-Current result (that file, full settings): ``["result"]["accuracy"]`` 0.8125 (13/16, sd 0.10);
-``["result"]["baselines"]``: affective features 0.75, relative strength 0.8125, mean-pose
-nearest neighbour 0.1875; the 90% region holds the true coordinates in 19% of the clips
-(``["result"]["hpd_coverage"]``), 88% with the calibrated likelihood power
-(``["result"]["calibrated"]["hpd_coverage"]``, accuracy 0.31); ``["confusion_table"]``.
+Current result (``results/bandai_inference.json``, full settings): ``["result"]["accuracy"]``
+0.875 (14/16), one of them an abstention named by the run's tie rule (docs: Emotion inference);
+ECE 0.12 plain, 0.24 with the recording effect (median n_eff 0.89 frames); 90% label sets
+cover 94%; no wrong answer with P >= 0.99; affective features 0.75 (ECE 0.16), relative
+strength 0.8125; 58% of the other actions flagged, their answers' mean entropy 1.26 nats.
 """
 
 from __future__ import annotations
