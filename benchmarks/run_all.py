@@ -195,9 +195,14 @@ def render_docs(page: str, results: dict[str, dict]) -> str:
     return page if study is None else embed(page, study, STUDY_START, STUDY_END)
 
 
+# result files a benchmark writes besides its own (``bandai_inference.py --all-contents``); the
+# tables list them after it
+EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all",)}
+
+
 def load_results() -> dict:
     results = {}
-    for name in BENCHMARKS:
+    for name in [n for b in BENCHMARKS for n in (b, *EXTRA_RESULTS.get(b, ()))]:
         p = RESULTS / f"{name}.json"
         if p.exists():
             results[name] = json.loads(p.read_text())
