@@ -178,8 +178,7 @@ class EmotionPosterior:
         """The smallest set of levels whose ``probabilities`` add up to at least ``q``."""
         p = self.probabilities
         order = np.argsort(-p, kind="stable")
-        n = int(np.searchsorted(np.cumsum(p[order]), q - 1e-12) + 1)
-        return tuple(self.levels[i] for i in order[:min(n, len(p))])
+        return tuple(self.levels[i] for i in order[:label_set_size(p, q)])
 
     @property
     def probabilities(self) -> np.ndarray:
@@ -255,6 +254,13 @@ class EmotionPosterior:
                 f"{tempered}{ood}); mean {coords}")
 
     __repr__ = __str__
+
+
+def label_set_size(probabilities, q: float) -> int:
+    """Size of the smallest set of levels whose probabilities add up to at least ``q`` (all of
+    them when rounding keeps the total below ``q``)."""
+    p = np.sort(np.asarray(probabilities, dtype=np.float64))[::-1]
+    return int(min(np.searchsorted(np.cumsum(p), q - 1e-12) + 1, p.size))
 
 
 def _on_simplex(W) -> bool:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bayesmotion.emotion.result import label_set_size
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.params import log_dirichlet
 
@@ -254,13 +255,6 @@ def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
             "confident_threshold": confident,
             "log_score": float(np.mean(np.log(np.maximum(p[np.arange(n), t], 1e-300)))),
             "brier": float(np.mean(np.sum((p - onehot) ** 2, 1)))}
-
-
-def label_set_size(probabilities, q: float) -> int:
-    """Size of the smallest set of levels whose probabilities add up to at least ``q`` (all of
-    them when rounding keeps the total below ``q``), as :meth:`EmotionPosterior.label_set`."""
-    p = np.sort(np.asarray(probabilities, dtype=np.float64))[::-1]
-    return int(min(np.searchsorted(np.cumsum(p), q - 1e-12) + 1, p.size))
 
 
 def _label_args(probabilities, truth) -> tuple[np.ndarray, np.ndarray]:

@@ -32,13 +32,13 @@ from bayesmotion.emotion.evidence import (
 )
 from bayesmotion.emotion.infer import infer_emotion
 from bayesmotion.emotion.ood import OutOfDistributionWarning
+from bayesmotion.emotion.result import label_set_size
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.evaluation.calibration import (
     ETA_GRID,
     calibrate_likelihood_power,
     hpd_power_from_levels,
     label_calibration,
-    label_set_size,
     tempered_hpd_levels,
     tempering_proposal,
 )
