@@ -66,7 +66,6 @@ from bayesmotion.model.predict import (
 REFERENCE_QUANTILE = 0.99
 #: distance ratio r (module docstring) beyond which a recording is flagged
 RECORDING_FLAG = 1.5
-LAYERS = ("bottom", "dynamics")
 #: per layer, the standardised residual and the negative log predictive density per output
 #: column: a clip projected far from every training latent has a wide predictive, so its
 #: residuals look ordinary while its density does not
