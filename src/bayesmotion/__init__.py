@@ -34,6 +34,7 @@ from bayesmotion.model.fitted import FittedHGPDM
 from bayesmotion.model.generate import Rollout, Transition
 from bayesmotion.model.io import load
 from bayesmotion.model.params import Priors
+from bayesmotion.model.rollout_file import load_rollout
 from bayesmotion.model.spec import HGPDM
 
 __all__ = [
@@ -41,7 +42,7 @@ __all__ = [
     "EmotionStyle", "FittedHGPDM", "ModelFileError", "Motion", "MotionDataset", "PoseCodec",
     "Posterior", "Priors", "Rollout", "Skeleton", "SkeletonMismatchError", "Transition", "Trial",
     "apply_emotion", "calibrate_evidence", "canonical_side", "datasets", "forward_kinematics",
-    "infer_emotion", "infer_online", "load", "mirror", "reframe", "rest_frames",
+    "infer_emotion", "infer_online", "load", "load_rollout", "mirror", "reframe", "rest_frames",
     "load_bandai", "load_cmu_handshake", "load_handshakes", "parse_bvh", "read_bvh",
     "sample_posterior", "write_bvh",
 ]

@@ -105,7 +105,14 @@ def save_model(model, path) -> Path:
         "diagnostics": model.diagnostics,
         "calibration": model.calibration,
     }
-    arrays["__meta__"] = np.frombuffer(json.dumps(meta, default=_json_default).encode(), np.uint8)
+    return write_archive(path, meta, arrays)
+
+
+def write_archive(path, meta: dict, arrays: dict[str, np.ndarray]) -> Path:
+    """``arrays`` plus ``meta`` (JSON) as ``__meta__``, compressed, written atomically."""
+    path = Path(path)
+    arrays = {**arrays, "__meta__": np.frombuffer(
+        json.dumps(meta, default=_json_default).encode(), np.uint8)}
     buf = _io.BytesIO()
     np.savez_compressed(buf, **arrays)
     with atomic_path(path) as tmp:  # usual permissions, removed on failure
@@ -114,8 +121,12 @@ def save_model(model, path) -> Path:
 
 
 @contextlib.contextmanager
-def open_archive(path: Path) -> Iterator[tuple[dict, ArchiveArrays]]:
+def open_archive(path: Path, fmt: str = FORMAT,
+                 version: int = FORMAT_VERSION) -> Iterator[tuple[dict, ArchiveArrays]]:
     """The checked metadata of a model file and its arrays, read on demand (module docstring).
+
+    ``fmt`` / ``version``: the format the metadata must name; other files this package writes
+    in the same layout (rollout files, :mod:`bayesmotion.model.rollout_file`) pass theirs.
 
     Raises:
         ModelFileError: the file is missing, not a regular file, not a zip, not of this
@@ -130,7 +141,7 @@ def open_archive(path: Path) -> Iterator[tuple[dict, ArchiveArrays]]:
                                  f"{e})") from None
         with zf:
             arrays = ArchiveArrays(zf, path)
-            yield _read_meta(arrays, path), arrays
+            yield _read_meta(arrays, path, fmt, version), arrays
 
 
 @contextlib.contextmanager
@@ -273,7 +284,8 @@ def _checked(a: np.ndarray, key: str, bad) -> np.ndarray:
     return a
 
 
-def _read_meta(arrays: ArchiveArrays, path: Path) -> dict:
+def _read_meta(arrays: ArchiveArrays, path: Path, fmt: str = FORMAT,
+               version: int = FORMAT_VERSION) -> dict:
     if "__meta__" not in arrays:
         raise ModelFileError(f"{path}: not a bayesmotion model file (no metadata)")
     raw = arrays._load("__meta__", limit=MAX_META_BYTES)  # not counted with the arrays
@@ -294,12 +306,13 @@ def _read_meta(arrays: ArchiveArrays, path: Path) -> dict:
         raise ModelFileError(f"{path}: corrupted metadata: lists and objects nested more than "
                              f"{MAX_META_DEPTH} levels deep (bayesmotion.model.archive."
                              f"MAX_META_DEPTH); the format nests 7")
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise ModelFileError(f"{path}: not a bayesmotion model file (format "
+    what = "model file" if fmt == FORMAT else f"{fmt.removeprefix('bayesmotion-')} file"
+    if not isinstance(meta, dict) or meta.get("format") != fmt:
+        raise ModelFileError(f"{path}: not a bayesmotion {what} (format "
                              f"{meta.get('format') if isinstance(meta, dict) else None!r})")
-    if type(meta.get("format_version")) is not int or meta["format_version"] != FORMAT_VERSION:
-        raise ModelFileError(f"{path}: model file format version {meta.get('format_version')!r} "
-                             f"is not supported (this bayesmotion reads {FORMAT_VERSION})")
+    if type(meta.get("format_version")) is not int or meta["format_version"] != version:
+        raise ModelFileError(f"{path}: {what} format version {meta.get('format_version')!r} "
+                             f"is not supported (this bayesmotion reads {version})")
     return meta
 
 

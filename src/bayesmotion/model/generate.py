@@ -168,6 +168,14 @@ class Rollout:
         sd = np.sqrt(var)
         return mean - z * sd, mean + z * sd
 
+    def save(self, path):
+        """Write the whole rollout (means, variances, samples, skeletons) to ``path``
+        (``.npz``, :mod:`bayesmotion.model.rollout_file`; read back with
+        :func:`bayesmotion.load_rollout`, viewed with ``bayesmotion view``)."""
+        from bayesmotion.model.rollout_file import save_rollout
+
+        return save_rollout(self, path)
+
     def write_bvh(self, folder, prefix: str = "rollout", sample: int | None = None) -> list:
         """One BVH file per actor; returns the paths."""
         from pathlib import Path

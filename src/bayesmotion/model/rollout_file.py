@@ -1,0 +1,166 @@
+"""Rollout files: a generated :class:`~bayesmotion.model.generate.Rollout` saved whole, with its
+variances and samples, in the model files' safe layout (:mod:`bayesmotion.model.archive`: a zip
+of plain numeric ``.npy`` members plus JSON metadata, written atomically, never pickled).
+
+Metadata: format ``bayesmotion-rollout`` version 1, the package version, ``fps``,
+``extrapolated``, ``start``, ``n_observed``, the style factors, the keys of ``samples``,
+``sample_var`` and ``variance_parts``, and each actor's skeleton as BVH text (one frame).
+Arrays: ``I``, ``I_var``, ``X``, ``X_var``, ``Y``, ``Y_var``, ``angles``, ``angles_var``,
+``positions``, ``positions_var``; ``styles/<factor>``; ``samples/<space>`` (sampled positions
+per actor, ``samples/positions/<a>``, as the format keeps at most four dimensions);
+``sample_var/<space>``; ``variance_parts/<space>/<within|between>``; ``draws``.
+
+:func:`load_rollout` checks every member as a model file's are checked, that the file holds
+exactly the members its metadata names, and that their shapes agree.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bayesmotion._version import __version__
+from bayesmotion.data.bvh import format_bvh, parse_bvh
+from bayesmotion.data.motion import Motion
+from bayesmotion.errors import BVHError, ModelFileError
+from bayesmotion.model.archive import open_archive, write_archive
+from bayesmotion.model.generate import Rollout
+
+FORMAT = "bayesmotion-rollout"
+FORMAT_VERSION = 1
+_MEAN = ("I", "I_var", "X", "X_var", "Y", "Y_var", "angles", "angles_var", "positions",
+         "positions_var")
+
+
+def save_rollout(r: Rollout, path) -> Path:
+    """Write ``r`` to ``path`` (``.npz``) atomically; returns the path."""
+    arrays = {k: np.asarray(getattr(r, k), dtype=np.float64) for k in _MEAN}
+    for f, c in r.styles.items():
+        arrays[f"styles/{f}"] = np.asarray(c, dtype=np.float64)
+    samples = sorted(r.samples) if r.samples is not None else None
+    for k in samples or ():
+        v = np.asarray(r.samples[k], dtype=np.float64)
+        if k == "positions":  # (S, A, T, J, 3): one member per actor
+            for a in range(v.shape[1]):
+                arrays[f"samples/positions/{a}"] = v[:, a]
+        else:
+            arrays[f"samples/{k}"] = v
+    sample_var = sorted(r.sample_var) if r.sample_var is not None else None
+    for k in sample_var or ():
+        arrays[f"sample_var/{k}"] = np.asarray(r.sample_var[k], dtype=np.float64)
+    parts = ({k: sorted(v) for k, v in r.variance_parts.items()}
+             if r.variance_parts is not None else None)
+    for k, names in (parts or {}).items():
+        for n in names:
+            arrays[f"variance_parts/{k}/{n}"] = np.asarray(r.variance_parts[k][n], np.float64)
+    if r.draws is not None:
+        arrays["draws"] = np.asarray(r.draws, dtype=np.int64)
+    skeletons = [format_bvh(Motion(sk, np.asarray(r.angles[a][:1]), r.fps, f"actor{a}"))
+                 for a, sk in enumerate(r.skeletons)]
+    meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "package_version": __version__,
+            "fps": float(r.fps), "extrapolated": bool(r.extrapolated), "start": str(r.start),
+            "n_observed": int(r.n_observed), "styles": list(r.styles), "samples": samples,
+            "sample_var": sample_var, "variance_parts": parts, "draws": r.draws is not None,
+            "skeletons": skeletons}
+    return write_archive(path, meta, arrays)
+
+
+def load_rollout(path) -> Rollout:
+    """A rollout written by :func:`save_rollout` (:meth:`Rollout.save`).
+
+    Raises:
+        ModelFileError: not a rollout file, a member missing, unnamed or malformed, or shapes
+            that disagree.
+    """
+    path = Path(path)
+
+    def bad(msg):
+        return ModelFileError(f"{path}: corrupted rollout file: {msg}")
+
+    with open_archive(path, FORMAT, FORMAT_VERSION) as (meta, arrays):
+        def get(key):
+            if key not in arrays:
+                raise bad(f"member {key + '.npy'!r} is missing")
+            return arrays[key]
+
+        fps = meta.get("fps")
+        if type(fps) not in (int, float) or not fps > 0:
+            raise bad(f"fps must be a positive number, got {fps!r}")
+        skeletons = meta.get("skeletons")
+        if not isinstance(skeletons, list) or not skeletons or not all(
+                isinstance(s, str) for s in skeletons):
+            raise bad("metadata 'skeletons' must be a non-empty list of BVH texts")
+        try:
+            sks = tuple(parse_bvh(s, f"{path} (actor {a} skeleton)").skeleton
+                        for a, s in enumerate(skeletons))
+        except BVHError as e:
+            raise bad(str(e)) from None
+        mean = {k: get(k) for k in _MEAN}
+        styles = {f: get(f"styles/{f}") for f in _names(meta.get("styles"), "styles", bad)}
+        samples = None
+        if meta.get("samples") is not None:
+            samples = {}
+            for k in _names(meta["samples"], "samples", bad):
+                if k == "positions":
+                    samples[k] = np.stack([get(f"samples/positions/{a}")
+                                           for a in range(len(sks))], axis=1)
+                else:
+                    samples[k] = get(f"samples/{k}")
+        sample_var = None
+        if meta.get("sample_var") is not None:
+            sample_var = {k: get(f"sample_var/{k}")
+                          for k in _names(meta["sample_var"], "sample_var", bad)}
+        parts = meta.get("variance_parts")
+        if parts is not None:
+            if not isinstance(parts, dict):
+                raise bad("metadata 'variance_parts' must be an object")
+            parts = {k: {n: get(f"variance_parts/{k}/{n}")
+                         for n in _names(v, "variance_parts", bad)} for k, v in parts.items()}
+        draws = get("draws").astype(int) if meta.get("draws") is True else None
+        unread = arrays.unread()
+        if unread:
+            raise bad(f"holds members its metadata does not name: {unread[:5]}")
+    _check_shapes(mean, styles, samples, sks, bad)
+    for k in ("extrapolated", "start", "n_observed"):
+        if k not in meta:
+            raise bad(f"metadata has no {k!r}")
+    if type(meta["n_observed"]) is not int or meta["n_observed"] < 0:
+        raise bad(f"n_observed must be an integer >= 0, got {meta['n_observed']!r}")
+    return Rollout(fps=float(fps), styles=styles, extrapolated=bool(meta["extrapolated"]),
+                   start=str(meta["start"]), n_observed=meta["n_observed"], skeletons=sks,
+                   samples=samples, sample_var=sample_var, variance_parts=parts, draws=draws,
+                   **mean)
+
+
+def _names(x, what: str, bad) -> list[str]:
+    if not isinstance(x, list) or not all(isinstance(s, str) and "/" not in s for s in x):
+        raise bad(f"metadata {what!r} must be a list of names")
+    return x
+
+
+def _check_shapes(mean: dict, styles: dict, samples, sks, bad) -> None:
+    A = len(sks)
+    if mean["I"].ndim != 2:
+        raise bad(f"I has shape {mean['I'].shape}; expected (T, Q)")
+    T = mean["I"].shape[0]
+    for k, nd in (("X", 3), ("Y", 3), ("angles", 3), ("positions", 4)):
+        v = mean[k]
+        if v.ndim != nd or v.shape[:2] != (A, T):
+            raise bad(f"{k} has shape {v.shape}; expected {nd} dimensions starting ({A} actors, "
+                      f"{T} frames)")
+    for k in ("I", "X", "Y", "angles", "positions"):
+        if mean[f"{k}_var"].shape != mean[k].shape:
+            raise bad(f"{k}_var has shape {mean[k + '_var'].shape}; {k} has {mean[k].shape}")
+    for a, sk in enumerate(sks):
+        if mean["positions"].shape[2] != sk.n_joints or mean["angles"].shape[2] != sk.n_channels:
+            raise bad(f"actor {a}'s positions / angles do not match its skeleton "
+                      f"({sk.n_joints} joints, {sk.n_channels} channels)")
+    for f, c in styles.items():
+        if c.ndim != 2 or c.shape[0] != T:
+            raise bad(f"styles/{f} has shape {c.shape}; expected ({T}, K)")
+    if samples is not None and "positions" in samples:
+        s = samples["positions"]
+        if s.shape[1:] != mean["positions"].shape:
+            raise bad(f"sampled positions have shape {s.shape}; expected (S, "
+                      f"{', '.join(map(str, mean['positions'].shape))})")
