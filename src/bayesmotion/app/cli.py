@@ -5,9 +5,11 @@ Commands:
             inference, report)
   fit       MAP fit of a hierarchical GPDM to DATA
   sample    emcee posterior of a fitted model, saved as netCDF
-  generate  handshakes from a model (mean and sampled rollouts) as BVH + GIF
+  generate  motion from a model (mean and sampled rollouts) as BVH, a rollout file and an
+            interactive viewer page (optionally a GIF)
   infer     posterior over the emotion of one clip (one or two BVH files)
   evaluate  leave-one-trial-out emotion inference on DATA
+  view      an interactive 3-D viewer page (HTML, self-contained) of BVH or rollout files
 
 DATA is builtin:handshakes, a folder of BVH files with labels.csv (file, emotion, couple), or a
 Bandai Namco dataset root.
@@ -25,6 +27,7 @@ command will need (bayesmotion.validate; --no-memory-check turns that check off)
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import io
 import json
@@ -47,6 +50,7 @@ from bayesmotion.inference.sample import sample_posterior
 from bayesmotion.model.io import load
 from bayesmotion.model.spec import HGPDM
 from bayesmotion.viz.animate import animate
+from bayesmotion.viz.viewer import load_clips, rollout_clip, write_viewer
 
 EXAMPLES = {
     "demo": "bayesmotion demo --quick --out demo_out",
@@ -56,6 +60,7 @@ EXAMPLES = {
     "infer": ("bayesmotion infer model.npz gen/happy_mean_actor0.bvh "
               "gen/happy_mean_actor1.bvh --json"),
     "evaluate": "bayesmotion evaluate model.npz builtin:handshakes",
+    "view": "bayesmotion view gen/happy_rollout.npz --out happy.html",
 }
 
 
@@ -116,7 +121,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="leave out the independence step on the hyperparameters "
                         "(sample_posterior(independence=False)); the factorised sampler "
                         "never uses it")
-    g = add("generate", "generate handshakes from a model")
+    g = add("generate", "generate motion from a model")
     g.add_argument("model")
     g.add_argument("--emotion", default="neutral", help="a label or coordinates, e.g. 0.5,0.5,0,0")
     g.add_argument("--couple", default=None)
@@ -155,6 +160,12 @@ def _parser() -> argparse.ArgumentParser:
                    default="vertices",
                    help="projection starts of every inference (see 'infer')")
     e.add_argument("--json", default=None, help="write the result to this JSON file")
+    v = add("view", "an interactive 3-D viewer page of motion files")
+    v.add_argument("files", nargs="+",
+                   help="rollout files (.npz from 'generate'; each one clip) or BVH files (one "
+                        "clip, a file per actor)")
+    v.add_argument("--out", required=True, help="the HTML page to write")
+    v.add_argument("--title", default="bayesmotion viewer")
     return p
 
 
@@ -280,13 +291,26 @@ def _cmd_generate(a):
     paths = r.write_bvh(out, prefix=tag)
     for k in range(a.samples):
         paths += r.write_bvh(out, prefix=tag, sample=k)
+    r.save(out / f"{tag}_rollout.npz")
+    write_viewer(out / f"{tag}.html", [rollout_clip(r, a.emotion, "emotion")],
+                 title=f"bayesmotion: {a.emotion}")
     if a.gif:
         # (S, A, T, J, 3) -> sample by sample, actors inside: the order spread_colors expects
         spread = None if r.samples is None else r.samples["positions"].reshape(
             -1, *r.samples["positions"].shape[2:])
         animate(r.to_motion(), out / f"{tag}.gif", spread=spread)
     flag = " (extrapolated beyond the simplex)" if r.extrapolated else ""
-    print(f"wrote {len(paths)} BVH files to {out}{flag}")
+    print(f"wrote {len(paths)} BVH files, {tag}_rollout.npz and the viewer {tag}.html to "
+          f"{out}{flag}")
+
+
+def _cmd_view(a):
+    for f in a.files:
+        validate.input_file(f, "file")
+    out = validate.output_file(a.out, "--out")
+    clips = load_clips(a.files)
+    write_viewer(out, clips, title=a.title)
+    print(f"wrote {out} ({len(clips)} clip{'s' if len(clips) > 1 else ''}); open it in a browser")
 
 
 def _cmd_infer(a):
@@ -435,6 +459,25 @@ def _input_error(e: Exception) -> str | None:
     return None
 
 
+@contextlib.contextmanager
+def _tidy_warnings(debug: bool):
+    """At the command line, each warning is one line on stderr (``warning: ...``), without the
+    file and source line that a program's author would want; and deprecation notices
+    (``FutureWarning``, ``DeprecationWarning``), which only the package's dependencies issue
+    (e.g. arviz's notice of its refactor) and which the user can do nothing about, are not
+    shown. ``--debug`` shows every warning as Python does."""
+    with warnings.catch_warnings():
+        if not debug:
+            for category in (FutureWarning, DeprecationWarning, PendingDeprecationWarning):
+                warnings.filterwarnings("ignore", category=category)
+
+            def show(message, category, filename, lineno, file=None, line=None):
+                print(f"warning: {_one_line(message)}", file=sys.stderr)
+
+            warnings.showwarning = show
+        yield
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         args = _parser().parse_args(argv)
@@ -442,7 +485,7 @@ def main(argv: list[str] | None = None) -> int:
         return e.code if isinstance(e.code, int) else 2
 
     try:
-        with validate.memory_checks(not args.no_memory_check):
+        with validate.memory_checks(not args.no_memory_check), _tidy_warnings(args.debug):
             globals()[f"_cmd_{args.command}"](args)
         return 0
     except KeyboardInterrupt:

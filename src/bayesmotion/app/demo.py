@@ -9,7 +9,6 @@ from __future__ import annotations
 import html
 import json
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +28,8 @@ from bayesmotion.model.spec import HGPDM
 from bayesmotion.validate import output_dir
 from bayesmotion.viz.animate import animate
 from bayesmotion.viz.plots import save_figure
+from bayesmotion.viz.posterior import plot_posterior
+from bayesmotion.viz.viewer import rollout_clip, viewer_fragment
 
 SETTINGS = {
     # quick: sized for the 3-minute target on 2 cores; its chains are far too short to trust
@@ -110,16 +111,11 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
                             "burn": post.info["burn"], "thin": post.info["thin"],
                             "max_tau": float(np.max(post.info["tau"])),
                             "warning": post.info.get("warning")}
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="More chains")  # walkers outnumber draws
-        axes = post.plot_trace(var_names=["gamma", "beta", "alpha"], combined=True)
-    fig = np.ravel(axes)[0].figure
-    save_figure(fig, out / "trace.png", dpi=70)
-    plt.close(fig)
+    plot_posterior(post, path=out / "trace.png", dpi=70)
     stage("posterior")
     # 3. posterior-predictive handshakes
     T = ds[0].n_frames
-    gifs, gen = [], {}
+    gifs, gen, clips = [], {}, []
     for e in model.levels["emotion"]:
         r = post.generate(emotion=e, couple="c1", n_frames=T, n_samples=cfg["n_samples"],
                           n_draws=cfg["n_draws"], seed=seed)
@@ -129,6 +125,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
         animate(r.to_motion(), gif, stride=cfg["gif_stride"],  # sample by sample, actors inside
                 spread=samples.reshape(-1, *samples.shape[2:]))
         gifs.append(gif)
+        clips.append(rollout_clip(r, e, "emotion (posterior predictive)"))
         parts = r.variance_parts["positions"]
         gen[e] = {"position_var_within": float(np.mean(parts["within"])),
                   "position_var_between": float(np.mean(parts["between"])),
@@ -142,6 +139,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
         c = np.zeros(len(levels))
         c[levels.index("neutral")], c[levels.index("happy")] = 1 - s, s
         r = model.generate(emotion=c, couple="c1", n_frames=T)
+        clips.append(rollout_clip(r, f"happy weight {s:.2f}", "interpolation neutral -> happy"))
         ep = infer_flagged(model, r.Y, couple="c1", n_steps=cfg["infer_steps"], seed=seed,
                            latent_uncertainty=False)
         lo, hi = ep.interval(0.9)
@@ -212,7 +210,12 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
         ("Posterior (emcee)", [out / "trace.png", table(
             [[k, f"{v:.3g}" if isinstance(v, float) else v]
              for k, v in summary["posterior"].items()], ["quantity", "value"])]),
-        ("Posterior-predictive handshakes (faint skeletons: samples)", gifs),
+        ("Generated handshakes", [viewer_fragment(clips, note=(
+            "Emotions: posterior-predictive rollouts (faint skeletons: sampled rollouts; discs: "
+            "mean +- 2 sd of each joint's position, the GP variance plus the spread across "
+            "posterior draws). Interpolation: the MAP model's mean rollout at each weight. "
+            "Animated GIFs of the emotions lie beside this report: "
+            f"{', '.join(g.name for g in gifs)}."))]),
         ("Interpolation neutral -> happy, inferred back", [out / "interpolation.png"]),
         ("Emotion inference on held-out trials", [table(
             rows, ["trial", "intended", "inferred", "mean coordinates",
