@@ -127,8 +127,10 @@ def test_training_clips_pass_and_foreign_motion_is_flagged(tiny_model):
     shaken = bm.Trial(tuple(bm.Motion(a.skeleton, a.values + rng.normal(0, 30, a.values.shape),
                                       a.fps, a.name) for a in trial.actors), dict(trial.labels),
                       "shaken")
-    with pytest.warns(OutOfDistributionWarning, match="outside the training data"):
+    with pytest.warns(OutOfDistributionWarning, match="outside the training data") as caught:
         post = bm.infer_emotion(tiny_model, shaken, n_steps=60)
+    # the warning points at the caller's line (this file), not into the package
+    assert {w.filename for w in caught} == {__file__}
     assert post.out_of_distribution and "OUT OF DISTRIBUTION" in str(post)
     assert post.info["ood"]["score"] > 3 * own.info["ood"]["score"]
     # a spread-out answer: the evidence is shrunk towards the prior

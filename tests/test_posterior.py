@@ -113,6 +113,30 @@ def test_idata_has_named_dims_and_round_trips_netcdf(tiny_model, tmp_path):
     np.testing.assert_array_equal(back.sample_stats["lp"].values, idata.sample_stats["lp"].values)
     summary = post.summary()
     assert {"r_hat", "ess_bulk", "ess_tail"} <= set(summary.columns)
+    # the readable view: one named row per hyperparameter, log axes for the scales, and
+    # each row's R-hat / ESS the same as arviz's summary of that coordinate
+    from bayesmotion.viz.posterior import coordinate_table, plot_posterior
+
+    rows = coordinate_table(post)
+    names = [r["name"] for r in rows]
+    assert names[:3] == ["gamma1_signal", "gamma2_inv_ls", "gamma3_noise_prec"]
+    assert len(names) == sum(idata.posterior[v].shape[-1] for v in ("gamma", "beta", "alpha",
+                                                                      "ar")
+                             if v in idata.posterior)
+    by_name = {r["name"]: r for r in rows}
+    np.testing.assert_allclose(by_name["beta2_inv_ls"]["rhat"],
+                               summary.loc["beta[beta2_inv_ls]", "r_hat"], atol=0.006)
+    np.testing.assert_allclose(by_name["beta2_inv_ls"]["ess_bulk"],
+                               summary.loc["beta[beta2_inv_ls]", "ess_bulk"], rtol=0.01)
+    fig = plot_posterior(post, path=tmp_path / "posterior.png")
+    axes = fig.axes
+    assert len(axes) == 2 * len(rows) and (tmp_path / "posterior.png").stat().st_size > 10_000
+    for k, r in enumerate(rows):
+        trace = axes[2 * k]
+        assert trace.get_ylabel() == r["name"]
+        assert trace.get_yscale() == ("log" if r["var"] in ("gamma", "beta", "alpha")
+                                      else "linear")
+        assert trace.get_title(loc="right").startswith(f"R-hat {r['rhat']:.3f}")
 
 
 RESUME_SCRIPT = textwrap.dedent("""

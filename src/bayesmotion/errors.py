@@ -1,8 +1,13 @@
 """Exceptions raised by bayesmotion.
 
 Every error the package raises on bad input is a :class:`BayesmotionError`, so a program can
-catch one type. Messages say what was wrong and what to do about it.
+catch one type. Messages say what was wrong and what to do about it. Warnings are issued
+with :func:`warn`, which attributes them to the user's line that called the package.
 """
+
+import os
+import sys
+import warnings
 
 
 class BayesmotionError(Exception):
@@ -19,3 +24,16 @@ class ModelFileError(BayesmotionError):
 
 class SkeletonMismatchError(BayesmotionError):
     """A motion's skeleton does not match the one a model was trained on."""
+
+
+_PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def warn(message: str, category: type[Warning] = UserWarning) -> None:
+    """Issue a warning attributed to the first caller outside bayesmotion: the line of the
+    user's code that called the package (what ``warnings`` prints and filters by), however deep
+    inside the package the condition was found."""
+    frame, level = sys._getframe(1), 2
+    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE_DIR):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, category, stacklevel=level - 1 if frame is None else level)

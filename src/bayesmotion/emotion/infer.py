@@ -30,7 +30,6 @@ clips of many lengths share compiled functions.
 from __future__ import annotations
 
 import time
-import warnings
 from functools import partial
 
 import jax
@@ -66,7 +65,7 @@ from bayesmotion.emotion.projection import (
     projection_starts,
 )
 from bayesmotion.emotion.result import EmotionPosterior, pool_posteriors
-from bayesmotion.errors import BayesmotionError
+from bayesmotion.errors import BayesmotionError, warn
 from bayesmotion.inference.posterior import Posterior
 from bayesmotion.inference.target import capped_covariance, draw_start, in_halves
 from bayesmotion.model.generate import style_coords
@@ -397,8 +396,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     stage("levels")
     info["seconds"] = time.perf_counter() - t0
     if ood["out_of_distribution"]:
-        warnings.warn(_ood_message(ood, info.get("in_distribution_weight")),
-                      OutOfDistributionWarning, stacklevel=3)
+        warn(_ood_message(ood, info.get("in_distribution_weight")), OutOfDistributionWarning)
     return EmotionPosterior(tuple(model.levels["emotion"]), styles["emotion"], lat,
                             np.swapaxes(lp, 0, 1),
                             tuple(model.levels["couple"]) if cl else None,

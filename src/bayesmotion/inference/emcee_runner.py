@@ -64,6 +64,11 @@ def _initial_state(start, seed):
     return emcee.State(start, random_state=np.random.RandomState(seed).get_state())
 
 
+PHASE_LABELS = {True: "emcee, adapting ({W} walkers)", False: "emcee, sampling ({W} walkers)",
+                None: "emcee ({W} walkers)"}
+"""Progress-bar label of each phase (the independence proposal's adaptation, then sampling)."""
+
+
 def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, progress, init,
                ball, moves, hmc=False, independence=False):
     """One ensemble over every sampled coordinate. With ``independence``, in two phases: the
@@ -116,12 +121,13 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         ran.append((used, end - done))
         sampler = emcee.EnsembleSampler(W, target.ndim, log_prob, vectorize=True, backend=be,
                                         moves=used)
+        label = {"progress_kwargs": {"desc": PHASE_LABELS[which].format(W=W)}}
         if done:
-            sampler.run_mcmc(None, end - done, progress=progress)
+            sampler.run_mcmc(None, end - done, progress=progress, **label)
         else:
             start = start_points(target, centre, W, init, ball, np.random.default_rng(seed),
                                   cov)
-            sampler.run_mcmc(_initial_state(start, seed), end, progress=progress)
+            sampler.run_mcmc(_initial_state(start, seed), end, progress=progress, **label)
         done = end
     seconds = time.perf_counter() - t0
     info = {"seconds": seconds, "factorised": False, **phase_stats(ran)}
@@ -214,7 +220,8 @@ def run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend
     init_up = s_up._previous_state if done_up else _initial_state(start[:, iu], seed)
     init_bot = s_bot._previous_state if done_bot else _initial_state(start[:, ib], seed + 1)
     t0 = time.perf_counter()
-    gen_up = s_up.sample(init_up, iterations=max(0, n_steps - done_up), progress=progress)
+    gen_up = s_up.sample(init_up, iterations=max(0, n_steps - done_up), progress=progress,
+                         progress_kwargs={"desc": f"emcee, factorised ({W} walkers)"})
     gen_bot = s_bot.sample(init_bot, iterations=max(0, n_bot - done_bot))
     for t in range(done_up, n_steps):  # interleaved, so a killed run leaves both files current
         next(gen_up)

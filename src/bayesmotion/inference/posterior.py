@@ -26,14 +26,13 @@ is sampled: the posterior is the product p(gamma | Y, X) p(beta, alpha, S | X, I
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bayesmotion.errors import BayesmotionError
+from bayesmotion.errors import BayesmotionError, warn
 from bayesmotion.inference.diagnostics import arviz_without_numba, save_netcdf, to_inference_data
 from bayesmotion.inference.predictive import generate_posterior
 from bayesmotion.inference.target import Target
@@ -164,7 +163,7 @@ def burn_thin(tau, n_steps, burn, thin, min_burn: int = 0):
     if n_steps < 50 * tmax:
         msg = (f"chain of {n_steps} steps is shorter than 50 autocorrelation times "
                f"(max tau ~ {tmax:.0f}): the estimates are unreliable; run longer")
-        warnings.warn(msg, ChainTooShortWarning, stacklevel=3)
+        warn(msg, ChainTooShortWarning)
         info["warning"] = msg
     if burn is None:
         burn = int(min(2 * tmax, n_steps // 2)) if np.isfinite(tmax) else n_steps // 2
