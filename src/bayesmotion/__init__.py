@@ -31,10 +31,10 @@ from bayesmotion.errors import BayesmotionError, BVHError, ModelFileError, Skele
 from bayesmotion.inference.posterior import Posterior
 from bayesmotion.inference.sample import sample_posterior
 from bayesmotion.model.fitted import FittedHGPDM
-from bayesmotion.model.generate import Rollout, Transition
+from bayesmotion.model.generate import Transition
 from bayesmotion.model.io import load
 from bayesmotion.model.params import Priors
-from bayesmotion.model.rollout_file import load_rollout
+from bayesmotion.model.rollout import Rollout, load_rollout
 from bayesmotion.model.spec import HGPDM
 
 __all__ = [

@@ -126,7 +126,7 @@ def open_archive(path: Path, fmt: str = FORMAT,
     """The checked metadata of a model file and its arrays, read on demand (module docstring).
 
     ``fmt`` / ``version``: the format the metadata must name; other files this package writes
-    in the same layout (rollout files, :mod:`bayesmotion.model.rollout_file`) pass theirs.
+    in the same layout (rollout files, :mod:`bayesmotion.model.rollout`) pass theirs.
 
     Raises:
         ModelFileError: the file is missing, not a regular file, not a zip, not of this

@@ -182,7 +182,7 @@ class FittedHGPDM:
             seed: PRNG seed of the samples.
             **styles: values for any other style factor of the model.
         Returns:
-            a :class:`bayesmotion.model.generate.Rollout`.
+            a :class:`bayesmotion.model.rollout.Rollout`.
         """
         return generate(self, emotion, couple, n_frames, n_samples, start, seed, **styles)
 

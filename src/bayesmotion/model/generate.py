@@ -18,7 +18,6 @@ Reported along the rollout:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from functools import partial
 from typing import NamedTuple
 
@@ -26,9 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bayesmotion.data.bvh import write_bvh
 from bayesmotion.data.fk import forward_kinematics, forward_kinematics_with_variance
-from bayesmotion.data.motion import Motion
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.predict import (
     Predictor,
@@ -42,6 +39,7 @@ from bayesmotion.model.predict import (
     restrict_to_styles,
     style_vectors,
 )
+from bayesmotion.model.rollout import Rollout
 from bayesmotion.validate import check_generate_args, check_generate_memory
 
 
@@ -98,92 +96,6 @@ def resolve_style(model, factor: str, value, n_frames: int) -> np.ndarray:
 def is_extrapolated(coords: np.ndarray) -> bool:
     """True when any frame's coordinates leave the simplex (negative or not summing to 1)."""
     return bool(np.any(coords < -1e-9) or np.any(np.abs(coords.sum(-1) - 1) > 1e-6))
-
-
-@dataclass(frozen=True, eq=False)
-class Rollout:
-    """Generated motion with its predictive uncertainty. Shapes: T frames, A actors, S samples.
-
-    Attributes:
-        fps: frame rate.
-        styles: factor -> (T, K) coordinates used.
-        extrapolated: any style outside the simplex.
-        start: description of the start state.
-        n_observed: leading frames copied from data (zero variance).
-        I, I_var: (T, Q_I) mean latent and its one-step predictive variance (incl. noise;
-            the same for every dimension of one GP layer).
-        variance_parts: posterior-predictive rollouts only: space -> {"within", "between"}
-            (GP variance given a draw, and variance of the mean across draws).
-        draws: posterior-predictive rollouts only: indices of the draws used.
-        X, X_var: (A, T, Q_X). Y, Y_var: (A, T, D).
-        angles, angles_var: (A, T, C) channel values (BVH order) and their variance.
-        positions, positions_var: (A, T, J, 3) joint positions and their variance.
-        samples: dict with I (S, T, Q_I), X, Y, angles (S, A, T, C), positions (S, A, T, J, 3),
-            or None. sample_var: the samples' spread in the same spaces.
-        skeletons: per actor, the skeleton used for decoding.
-    """
-
-    fps: float
-    styles: dict
-    extrapolated: bool
-    start: str
-    n_observed: int
-    I: np.ndarray
-    I_var: np.ndarray
-    X: np.ndarray
-    X_var: np.ndarray
-    Y: np.ndarray
-    Y_var: np.ndarray
-    angles: np.ndarray
-    angles_var: np.ndarray
-    positions: np.ndarray
-    positions_var: np.ndarray
-    skeletons: tuple
-    samples: dict | None = None
-    sample_var: dict | None = field(default=None)
-    variance_parts: dict | None = None
-    draws: np.ndarray | None = None
-
-    @property
-    def n_frames(self) -> int:
-        return self.I.shape[0]
-
-    def to_motion(self, sample: int | None = None) -> tuple[Motion, ...]:
-        """Per-actor Motions of the mean rollout (``sample=None``) or of sample ``sample``."""
-        if sample is None:
-            ang = self.angles
-        else:
-            if self.samples is None or not 0 <= sample < self.samples["angles"].shape[0]:
-                raise BayesmotionError(f"rollout has no sample {sample}")
-            ang = self.samples["angles"][sample]
-        return tuple(Motion(sk, ang[a], self.fps, f"actor{a}")
-                     for a, sk in enumerate(self.skeletons))
-
-    def interval(self, q: float = 0.9, space: str = "positions"):
-        """Central ``q`` Gaussian interval (lower, upper) of the mean rollout in a space."""
-        from scipy.stats import norm
-
-        mean, var = getattr(self, space), getattr(self, f"{space}_var")
-        z = norm.ppf(0.5 + q / 2)
-        sd = np.sqrt(var)
-        return mean - z * sd, mean + z * sd
-
-    def save(self, path):
-        """Write the whole rollout (means, variances, samples, skeletons) to ``path``
-        (``.npz``, :mod:`bayesmotion.model.rollout_file`; read back with
-        :func:`bayesmotion.load_rollout`, viewed with ``bayesmotion view``)."""
-        from bayesmotion.model.rollout_file import save_rollout
-
-        return save_rollout(self, path)
-
-    def write_bvh(self, folder, prefix: str = "rollout", sample: int | None = None) -> list:
-        """One BVH file per actor; returns the paths."""
-        from pathlib import Path
-
-
-        tag = "mean" if sample is None else f"sample{sample}"
-        return [write_bvh(m, Path(folder) / f"{prefix}_{tag}_actor{a}.bvh")
-                for a, m in enumerate(self.to_motion(sample))]
 
 
 # --------------------------------------------------------------------------- the jitted core

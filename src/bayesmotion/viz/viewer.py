@@ -7,10 +7,10 @@ one per emotion and an interpolation series precomputed by the report). Its scri
 JavaScript written for this page, drawing on a 2-D canvas with a perspective projection, so the
 file works offline and carries no third-party code.
 
-Clips come from a :class:`~bayesmotion.model.generate.Rollout` (:func:`rollout_clip`), from
+Clips come from a :class:`~bayesmotion.model.rollout.Rollout` (:func:`rollout_clip`), from
 motions such as a BVH file read with :func:`bayesmotion.data.read_bvh` (:func:`motion_clip`), or
 from files on disk (:func:`load_clips`: BVH files or rollout files written by
-:meth:`Rollout.save <bayesmotion.model.generate.Rollout.save>`). :func:`viewer_html` makes the
+:meth:`Rollout.save <bayesmotion.model.rollout.Rollout.save>`). :func:`viewer_html` makes the
 page, :func:`viewer_fragment` the part that :mod:`bayesmotion.app.report` embeds, and
 :func:`write_viewer` writes a page atomically. ``bayesmotion view FILE...`` is the same from the
 command line.
@@ -33,8 +33,7 @@ from bayesmotion.data.bvh import read_bvh
 from bayesmotion.data.files import atomic_write_text
 from bayesmotion.data.motion import Motion, Trial
 from bayesmotion.errors import BayesmotionError
-from bayesmotion.model.generate import Rollout
-from bayesmotion.model.rollout_file import load_rollout
+from bayesmotion.model.rollout import Rollout, load_rollout
 from bayesmotion.viz.plots import HIDDEN_JOINTS
 
 COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd")

@@ -1,14 +1,15 @@
-"""Rollout files: a generated :class:`~bayesmotion.model.generate.Rollout` saved whole, with its
-variances and samples, in the model files' safe layout (:mod:`bayesmotion.model.archive`: a zip
-of plain numeric ``.npy`` members plus JSON metadata, written atomically, never pickled).
+"""Generated motion: the :class:`Rollout` that ``generate`` returns, and rollout files, which
+keep one whole, with its variances and samples, in the model files' safe layout
+(:mod:`bayesmotion.model.archive`: a zip of plain numeric ``.npy`` members plus JSON metadata,
+written atomically, never pickled).
 
-Metadata: format ``bayesmotion-rollout`` version 1, the package version, ``fps``,
-``extrapolated``, ``start``, ``n_observed``, the style factors, the keys of ``samples``,
-``sample_var`` and ``variance_parts``, and each actor's skeleton as BVH text (one frame).
-Arrays: ``I``, ``I_var``, ``X``, ``X_var``, ``Y``, ``Y_var``, ``angles``, ``angles_var``,
-``positions``, ``positions_var``; ``styles/<factor>``; ``samples/<space>`` (sampled positions
-per actor, ``samples/positions/<a>``, as the format keeps at most four dimensions);
-``sample_var/<space>``; ``variance_parts/<space>/<within|between>``; ``draws``.
+A rollout file's metadata: format ``bayesmotion-rollout`` version 1, the package version,
+``fps``, ``extrapolated``, ``start``, ``n_observed``, the style factors, the keys of
+``samples``, ``sample_var`` and ``variance_parts``, and each actor's skeleton as BVH text (one
+frame). Its arrays: ``I``, ``I_var``, ``X``, ``X_var``, ``Y``, ``Y_var``, ``angles``,
+``angles_var``, ``positions``, ``positions_var``; ``styles/<factor>``; ``samples/<space>``
+(sampled positions per actor, ``samples/positions/<a>``, as the format keeps at most four
+dimensions); ``sample_var/<space>``; ``variance_parts/<space>/<within|between>``; ``draws``.
 
 :func:`load_rollout` checks every member as a model file's are checked, that the file holds
 exactly the members its metadata names, and that their shapes agree.
@@ -16,16 +17,99 @@ exactly the members its metadata names, and that their shapes agree.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from bayesmotion._version import __version__
-from bayesmotion.data.bvh import format_bvh, parse_bvh
+from bayesmotion.data.bvh import format_bvh, parse_bvh, write_bvh
 from bayesmotion.data.motion import Motion
-from bayesmotion.errors import BVHError, ModelFileError
+from bayesmotion.errors import BayesmotionError, BVHError, ModelFileError
 from bayesmotion.model.archive import open_archive, write_archive
-from bayesmotion.model.generate import Rollout
+
+
+@dataclass(frozen=True, eq=False)
+class Rollout:
+    """Generated motion with its predictive uncertainty. Shapes: T frames, A actors, S samples.
+
+    Attributes:
+        fps: frame rate.
+        styles: factor -> (T, K) coordinates used.
+        extrapolated: any style outside the simplex.
+        start: description of the start state.
+        n_observed: leading frames copied from data (zero variance).
+        I, I_var: (T, Q_I) mean latent and its one-step predictive variance (incl. noise;
+            the same for every dimension of one GP layer).
+        variance_parts: posterior-predictive rollouts only: space -> {"within", "between"}
+            (GP variance given a draw, and variance of the mean across draws).
+        draws: posterior-predictive rollouts only: indices of the draws used.
+        X, X_var: (A, T, Q_X). Y, Y_var: (A, T, D).
+        angles, angles_var: (A, T, C) channel values (BVH order) and their variance.
+        positions, positions_var: (A, T, J, 3) joint positions and their variance.
+        samples: dict with I (S, T, Q_I), X, Y, angles (S, A, T, C), positions (S, A, T, J, 3),
+            or None. sample_var: the samples' spread in the same spaces.
+        skeletons: per actor, the skeleton used for decoding.
+    """
+
+    fps: float
+    styles: dict
+    extrapolated: bool
+    start: str
+    n_observed: int
+    I: np.ndarray
+    I_var: np.ndarray
+    X: np.ndarray
+    X_var: np.ndarray
+    Y: np.ndarray
+    Y_var: np.ndarray
+    angles: np.ndarray
+    angles_var: np.ndarray
+    positions: np.ndarray
+    positions_var: np.ndarray
+    skeletons: tuple
+    samples: dict | None = None
+    sample_var: dict | None = field(default=None)
+    variance_parts: dict | None = None
+    draws: np.ndarray | None = None
+
+    @property
+    def n_frames(self) -> int:
+        return self.I.shape[0]
+
+    def to_motion(self, sample: int | None = None) -> tuple[Motion, ...]:
+        """Per-actor Motions of the mean rollout (``sample=None``) or of sample ``sample``."""
+        if sample is None:
+            ang = self.angles
+        else:
+            if self.samples is None or not 0 <= sample < self.samples["angles"].shape[0]:
+                raise BayesmotionError(f"rollout has no sample {sample}")
+            ang = self.samples["angles"][sample]
+        return tuple(Motion(sk, ang[a], self.fps, f"actor{a}")
+                     for a, sk in enumerate(self.skeletons))
+
+    def interval(self, q: float = 0.9, space: str = "positions"):
+        """Central ``q`` Gaussian interval (lower, upper) of the mean rollout in a space."""
+        from scipy.stats import norm
+
+        mean, var = getattr(self, space), getattr(self, f"{space}_var")
+        z = norm.ppf(0.5 + q / 2)
+        sd = np.sqrt(var)
+        return mean - z * sd, mean + z * sd
+
+    def save(self, path) -> Path:
+        """Write the whole rollout (means, variances, samples, skeletons) to ``path``
+        (``.npz``, the layout in this module's docstring), atomically; read it back with
+        :func:`load_rollout` (``bayesmotion.load_rollout``), view it with ``bayesmotion
+        view``."""
+        return save_rollout(self, path)
+
+    def write_bvh(self, folder, prefix: str = "rollout", sample: int | None = None) -> list:
+        """One BVH file per actor; returns the paths."""
+        tag = "mean" if sample is None else f"sample{sample}"
+        return [write_bvh(m, Path(folder) / f"{prefix}_{tag}_actor{a}.bvh")
+                for a, m in enumerate(self.to_motion(sample))]
+
 
 FORMAT = "bayesmotion-rollout"
 FORMAT_VERSION = 1
