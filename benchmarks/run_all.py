@@ -195,9 +195,11 @@ def render_docs(page: str, results: dict[str, dict]) -> str:
     return page if study is None else embed(page, study, STUDY_START, STUDY_END)
 
 
-# result files a benchmark writes besides its own (``bandai_inference.py --all-contents``); the
-# tables list them after it
-EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all",)}
+# result files written besides the suite's own runs, listed after the benchmark named: the 40
+# clips of ``bandai_inference.py --all-contents``, and ``device_timings.py --merge`` of a lent
+# GPU's part with this CPU's (run by hand: the suite has no GPU)
+EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all",),
+                 "infer_speed": ("device_timings",)}
 
 
 def load_results() -> dict:
