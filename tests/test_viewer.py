@@ -2,8 +2,10 @@
 browser (headless Chromium: loads without console errors, plays, scrubs, turns, switches
 clips), and that rollout files round-trip and refuse what they should."""
 
+import io
 import json
 import re
+import warnings
 import zipfile
 
 import numpy as np
@@ -12,11 +14,13 @@ import pytest
 import bayesmotion as bm
 from bayesmotion.app.cli import main
 from bayesmotion.errors import BayesmotionError, ModelFileError
+from bayesmotion.inference.posterior import ChainTooShortWarning
 from bayesmotion.viz.viewer import (
     ViewerClip,
     load_clips,
     motion_clip,
     rollout_clip,
+    viewer_fragment,
     viewer_html,
     write_viewer,
 )
@@ -35,7 +39,8 @@ def rollouts(tiny_model):
 def _data(page: str) -> list:
     m = re.search(r'<script type="application/json" class="bm-data">(.*?)</script>', page,
                   re.S)
-    return json.loads(m.group(1).replace("<\\/", "</"))
+    assert "<" not in m.group(1)  # nothing in the data can end the element or open a comment
+    return json.loads(m.group(1))
 
 
 # ----------------------------------------------------------------------------- rollout files
@@ -81,8 +86,6 @@ def test_rollout_file_refuses_other_files(rollouts, tiny_model, tmp_path):
         for item in zin.infolist():
             data = zin.read(item)
             if item.filename == "positions_var.npy":
-                import io
-
                 buf = io.BytesIO()
                 np.save(buf, np.zeros((2, 5, 3, 3)))
                 data = buf.getvalue()
@@ -91,17 +94,75 @@ def test_rollout_file_refuses_other_files(rollouts, tiny_model, tmp_path):
         bm.load_rollout(bad)
 
 
+def _rewritten(src, dst, member, value):
+    """A copy of the archive ``src`` with ``member`` (a .npy name) holding ``value``."""
+    import io
+
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w") as zout:
+        for item in zin.infolist():
+            data = zin.read(item)
+            if item.filename == member:
+                buf = io.BytesIO()
+                np.save(buf, value)
+                data = buf.getvalue()
+            zout.writestr(item, data)
+    return dst
+
+
+def test_every_malformed_member_is_refused_with_a_model_file_error(rollouts, tmp_path):
+    """Each member replaced by an array of the wrong shape, and each variance made negative:
+    the loader refuses all with ModelFileError (never a raw NumPy error, nor a rollout that
+    fails later)."""
+    src = rollouts["happy"].save(tmp_path / "src.npz")
+    with zipfile.ZipFile(src) as z:
+        members = [n for n in z.namelist() if n != "__meta__.npy"]
+        shapes = {n: np.load(io.BytesIO(z.read(n))).shape for n in members}
+    assert {"samples/positions/0.npy", "sample_var/angles.npy", "styles/emotion.npy"} <= set(
+        members)
+    for k, name in enumerate(members):
+        wrong = np.zeros(tuple(d + 1 for d in shapes[name]) or (2,))
+        with pytest.raises(ModelFileError):
+            bm.load_rollout(_rewritten(src, tmp_path / f"w{k}.npz", name, wrong))
+        if "var" in name:
+            with pytest.raises(ModelFileError, match="negative"):
+                bm.load_rollout(_rewritten(src, tmp_path / f"n{k}.npz", name,
+                                           -np.ones(shapes[name])))
+
+
+def test_a_rollout_that_cannot_be_read_back_is_not_written(rollouts, tmp_path):
+    import dataclasses
+
+    r = rollouts["mix"]
+    bad = dataclasses.replace(r, positions_var=np.full_like(r.positions_var, np.inf))
+    with pytest.raises(BayesmotionError, match="cannot be saved"):
+        bad.save(tmp_path / "inf.npz")
+    assert not (tmp_path / "inf.npz").exists()
+
+
+def test_posterior_predictive_rollouts_round_trip(tiny_model, tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        post = bm.sample_posterior(tiny_model, n_steps=12, progress=False)
+    r = post.generate(emotion="sad", couple="c1", n_frames=12, n_samples=2, n_draws=2)
+    back = bm.load_rollout(r.save(tmp_path / "pp.npz"))
+    np.testing.assert_array_equal(back.draws, r.draws)
+    for k, parts in r.variance_parts.items():
+        for n, v in parts.items():
+            np.testing.assert_array_equal(back.variance_parts[k][n], v, err_msg=f"{k}/{n}")
+    assert rollout_clip(back, "pp").to_json()["actors"][0]["samples"] is not None
+
+
 # ------------------------------------------------------------------------------- the page
 def test_page_holds_the_clips_and_nothing_external(rollouts):
     r = rollouts["happy"]
     clips = [rollout_clip(r, "happy", "emotion"),
-             rollout_clip(rollouts["mix"], "</script><b>mix</b>", "interpolation")]
+             rollout_clip(rollouts["mix"], "</script><!-- <b>mix</b>", "interpolation")]
     page = viewer_html(clips, title="t <1>")
     assert "t &lt;1&gt;" in page
     # self-contained: no address to fetch anything from, no external script or stylesheet
     assert not re.search(r"https?://|src\s*=|<link", page)
     data = _data(page)
-    assert [c["name"] for c in data] == ["happy", "</script><b>mix</b>"]
+    assert [c["name"] for c in data] == ["happy", "</script><!-- <b>mix</b>"]
     a0 = data[0]["actors"][0]
     assert data[0]["n_frames"] == r.n_frames and data[0]["fps"] == r.fps
     np.testing.assert_allclose(a0["mean"], r.positions[0], atol=0.006)
@@ -174,6 +235,15 @@ def test_viewer_plays_in_chromium(rollouts, tmp_path):
     assert seen["errors"] == []
     assert seen["label_before"].startswith("frame 1 / 24")
     assert not seen["label_after"].startswith("frame 1 /")  # time moved on
-    assert seen["played"] and seen["turned"] and seen["switched"]
+    assert seen["played"] and seen["turned"] and seen["switched"] and seen["paused_still"]
     assert seen["options"] == 3
-    assert seen["label_scrubbed"].startswith("frame 1 / 24")
+    assert seen["label_scrubbed"].startswith("frame 11 / 24")
+
+
+def test_two_viewers_on_one_page_each_keep_their_clips(rollouts, tmp_path):
+    first = viewer_fragment([rollout_clip(rollouts[e], e) for e in ("happy", "sad")])
+    second = viewer_fragment([rollout_clip(rollouts["mix"], "mix <!-- x")])
+    page = tmp_path / "two.html"
+    page.write_text(f"<!doctype html><html><body>{first}{second}</body></html>")
+    seen = browser_check(page, tmp_path)
+    assert seen["errors"] == [] and seen["options"] == 2 and seen["played"]

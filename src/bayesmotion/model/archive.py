@@ -133,32 +133,38 @@ def open_archive(path: Path, fmt: str = FORMAT,
             format or version, or its metadata breaks the limits.
     """
     path = Path(path)
-    with _open_file(path) as fh:
+    what = _what(fmt)
+    with _open_file(path, what) as fh:
         try:
             zf = zipfile.ZipFile(fh)
         except _UNREADABLE as e:
-            raise ModelFileError(f"{path}: not a bayesmotion model file (unreadable archive: "
+            raise ModelFileError(f"{path}: not a bayesmotion {what} (unreadable archive: "
                                  f"{e})") from None
         with zf:
-            arrays = ArchiveArrays(zf, path)
+            arrays = ArchiveArrays(zf, path, what)
             yield _read_meta(arrays, path, fmt, version), arrays
 
 
+def _what(fmt: str) -> str:
+    """How messages name a file of format ``fmt``: "model file", "rollout file"."""
+    return "model file" if fmt == FORMAT else f"{fmt.removeprefix('bayesmotion-')} file"
+
+
 @contextlib.contextmanager
-def _open_file(path: Path):
+def _open_file(path: Path, what: str = "model file"):
     """``path`` opened for reading, if a regular file (a FIFO is never opened)."""
     where = repr(str(path)) if "\x00" in str(path) else str(path)
     opened = contextlib.ExitStack()
     try:
         fh = opened.enter_context(open_regular(path))
     except NotRegularFileError:
-        raise ModelFileError(f"{where}: not a model file: not a regular file") from None
+        raise ModelFileError(f"{where}: not a {what}: not a regular file") from None
     except ValueError:
         raise ModelFileError(f"{where}: the path contains a NUL byte") from None
     except FileNotFoundError as e:
-        raise ModelFileError(f"{where}: no such model file ({e.strerror})") from None
+        raise ModelFileError(f"{where}: no such {what} ({e.strerror})") from None
     except OSError as e:
-        raise ModelFileError(f"{where}: cannot read model file ({e.strerror or e})") from None
+        raise ModelFileError(f"{where}: cannot read {what} ({e.strerror or e})") from None
     with opened:
         yield fh
 
@@ -171,8 +177,8 @@ class ArchiveArrays(Mapping):
         total_bytes: bytes of the arrays read so far.
     """
 
-    def __init__(self, zf: zipfile.ZipFile, path: Path):
-        self._zf, self._path = zf, path
+    def __init__(self, zf: zipfile.ZipFile, path: Path, what: str = "model file"):
+        self._zf, self._path, self._what = zf, path, what
         self._members: dict[str, zipfile.ZipInfo] = {}
         self._others: list[str] = []
         for info in zf.infolist():
@@ -180,7 +186,7 @@ class ArchiveArrays(Mapping):
             key = name[:-4] if name.endswith(".npy") else None
             if key is None or key in self._members:
                 if key is not None:
-                    raise ModelFileError(f"{path}: corrupted model file: member {name!r} is "
+                    raise ModelFileError(f"{path}: corrupted {what}: member {name!r} is "
                                          f"stored twice")
                 self._others.append(name)
             else:
@@ -215,7 +221,8 @@ class ArchiveArrays(Mapping):
         info = self._members[key]
 
         def bad(msg):
-            return ModelFileError(f"{self._path}: corrupted model file: member {info.filename!r} "
+            return ModelFileError(f"{self._path}: corrupted {self._what}: member "
+                                  f"{info.filename!r} "
                                   f"{msg}")
 
         if limit is None:
@@ -234,7 +241,7 @@ class ArchiveArrays(Mapping):
                 if nbytes > budget:
                     raise ModelFileError(
                         f"{self._path}: member {info.filename!r} declares {nbytes} bytes, more "
-                        f"than {limit_name} (bayesmotion.model.archive): not a model file this "
+                        f"than {limit_name} (bayesmotion.model.archive): not a {self._what} this "
                         f"package wrote; nothing was read")
                 data = f.read(nbytes)
                 if len(data) != nbytes or f.read(1):
@@ -287,7 +294,7 @@ def _checked(a: np.ndarray, key: str, bad) -> np.ndarray:
 def _read_meta(arrays: ArchiveArrays, path: Path, fmt: str = FORMAT,
                version: int = FORMAT_VERSION) -> dict:
     if "__meta__" not in arrays:
-        raise ModelFileError(f"{path}: not a bayesmotion model file (no metadata)")
+        raise ModelFileError(f"{path}: not a bayesmotion {_what(fmt)} (no metadata)")
     raw = arrays._load("__meta__", limit=MAX_META_BYTES)  # not counted with the arrays
     arrays._read["__meta__"] = raw  # read: not an unknown member
     if raw.dtype != np.uint8 or raw.ndim != 1:
@@ -306,7 +313,7 @@ def _read_meta(arrays: ArchiveArrays, path: Path, fmt: str = FORMAT,
         raise ModelFileError(f"{path}: corrupted metadata: lists and objects nested more than "
                              f"{MAX_META_DEPTH} levels deep (bayesmotion.model.archive."
                              f"MAX_META_DEPTH); the format nests 7")
-    what = "model file" if fmt == FORMAT else f"{fmt.removeprefix('bayesmotion-')} file"
+    what = _what(fmt)
     if not isinstance(meta, dict) or meta.get("format") != fmt:
         raise ModelFileError(f"{path}: not a bayesmotion {what} (format "
                              f"{meta.get('format') if isinstance(meta, dict) else None!r})")

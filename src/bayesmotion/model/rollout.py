@@ -12,7 +12,10 @@ frame). Its arrays: ``I``, ``I_var``, ``X``, ``X_var``, ``Y``, ``Y_var``, ``angl
 dimensions); ``sample_var/<space>``; ``variance_parts/<space>/<within|between>``; ``draws``.
 
 :func:`load_rollout` checks every member as a model file's are checked, that the file holds
-exactly the members its metadata names, and that their shapes agree.
+exactly the members its metadata names, that every member's shape agrees with the mean
+rollout's (samples: every space, one leading sample axis), that variances are not negative, and
+that the skeletons parse. :func:`save_rollout` refuses, before writing, what the reader would
+refuse.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from bayesmotion._version import __version__
 from bayesmotion.data.bvh import format_bvh, parse_bvh, write_bvh
 from bayesmotion.data.motion import Motion
 from bayesmotion.errors import BayesmotionError, BVHError, ModelFileError
-from bayesmotion.model.archive import open_archive, write_archive
+from bayesmotion.model.archive import MAX_ABS, MAX_ARRAY_BYTES, open_archive, write_archive
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,6 +116,7 @@ class Rollout:
 
 FORMAT = "bayesmotion-rollout"
 FORMAT_VERSION = 1
+_SPACES = ("I", "X", "Y", "angles", "positions")
 _MEAN = ("I", "I_var", "X", "X_var", "Y", "Y_var", "angles", "angles_var", "positions",
          "positions_var")
 
@@ -147,7 +151,23 @@ def save_rollout(r: Rollout, path) -> Path:
             "n_observed": int(r.n_observed), "styles": list(r.styles), "samples": samples,
             "sample_var": sample_var, "variance_parts": parts, "draws": r.draws is not None,
             "skeletons": skeletons}
+    _check_writable(arrays)
     return write_archive(path, meta, arrays)
+
+
+def _check_writable(arrays: dict[str, np.ndarray]) -> None:
+    """Refuse, before writing, a rollout that :func:`load_rollout` would refuse to read:
+    values not finite or beyond the archive's ``MAX_ABS``, or more than ``MAX_ARRAY_BYTES``."""
+    total = sum(a.nbytes for a in arrays.values())
+    if total > MAX_ARRAY_BYTES:
+        raise BayesmotionError(f"the rollout's arrays take {total / 2**20:.0f} MiB, more than "
+                               f"a rollout file holds ({MAX_ARRAY_BYTES / 2**20:.0f} MiB, "
+                               "bayesmotion.model.archive.MAX_ARRAY_BYTES); save fewer samples "
+                               "or frames")
+    for k, a in arrays.items():
+        if a.dtype.kind == "f" and not np.all(np.abs(a) <= MAX_ABS):
+            raise BayesmotionError(f"the rollout's {k} holds values that are not finite or "
+                                   f"beyond +-{MAX_ABS:g}: it cannot be saved")
 
 
 def load_rollout(path) -> Rollout:
@@ -185,10 +205,16 @@ def load_rollout(path) -> Rollout:
         samples = None
         if meta.get("samples") is not None:
             samples = {}
-            for k in _names(meta["samples"], "samples", bad):
+            keys = _names(meta["samples"], "samples", bad)
+            if sorted(keys) != sorted(_SPACES):
+                raise bad(f"samples must hold every space {list(_SPACES)}, got {keys}")
+            for k in keys:
                 if k == "positions":
-                    samples[k] = np.stack([get(f"samples/positions/{a}")
-                                           for a in range(len(sks))], axis=1)
+                    per_actor = [get(f"samples/positions/{a}") for a in range(len(sks))]
+                    if len({p.shape for p in per_actor}) != 1 or per_actor[0].ndim != 4:
+                        raise bad(f"sampled positions of the actors have shapes "
+                                  f"{[p.shape for p in per_actor]}; expected one (S, T, J, 3)")
+                    samples[k] = np.stack(per_actor, axis=1)
                 else:
                     samples[k] = get(f"samples/{k}")
         sample_var = None
@@ -201,11 +227,13 @@ def load_rollout(path) -> Rollout:
                 raise bad("metadata 'variance_parts' must be an object")
             parts = {k: {n: get(f"variance_parts/{k}/{n}")
                          for n in _names(v, "variance_parts", bad)} for k, v in parts.items()}
-        draws = get("draws").astype(int) if meta.get("draws") is True else None
+        draws = get("draws") if meta.get("draws") is True else None
+        if draws is not None and (draws.ndim != 1 or draws.dtype.kind not in "iu"):
+            raise bad(f"draws must be a 1-D integer array, got {draws.shape} {draws.dtype}")
         unread = arrays.unread()
         if unread:
             raise bad(f"holds members its metadata does not name: {unread[:5]}")
-    _check_shapes(mean, styles, samples, sks, bad)
+    _check_shapes(mean, styles, samples, sample_var, parts, sks, bad)
     for k in ("extrapolated", "start", "n_observed"):
         if k not in meta:
             raise bad(f"metadata has no {k!r}")
@@ -223,7 +251,7 @@ def _names(x, what: str, bad) -> list[str]:
     return x
 
 
-def _check_shapes(mean: dict, styles: dict, samples, sks, bad) -> None:
+def _check_shapes(mean: dict, styles: dict, samples, sample_var, parts, sks, bad) -> None:
     A = len(sks)
     if mean["I"].ndim != 2:
         raise bad(f"I has shape {mean['I'].shape}; expected (T, Q)")
@@ -243,8 +271,21 @@ def _check_shapes(mean: dict, styles: dict, samples, sks, bad) -> None:
     for f, c in styles.items():
         if c.ndim != 2 or c.shape[0] != T:
             raise bad(f"styles/{f} has shape {c.shape}; expected ({T}, K)")
-    if samples is not None and "positions" in samples:
-        s = samples["positions"]
-        if s.shape[1:] != mean["positions"].shape:
-            raise bad(f"sampled positions have shape {s.shape}; expected (S, "
-                      f"{', '.join(map(str, mean['positions'].shape))})")
+    for k in _SPACES:
+        if np.any(mean[f"{k}_var"] < 0):
+            raise bad(f"{k}_var holds negative variances")
+    S = None
+    for k, v in (samples or {}).items():
+        S = v.shape[0] if S is None else S
+        if v.shape != (S, *mean[k].shape):
+            raise bad(f"samples/{k} has shape {v.shape}; expected ({S}, "
+                      f"{', '.join(map(str, mean[k].shape))})")
+    for k, v in (sample_var or {}).items():
+        if k not in _SPACES or v.shape != mean[k].shape or np.any(v < 0):
+            raise bad(f"sample_var/{k} must be non-negative variances of a space "
+                      f"{list(_SPACES)} shaped as its mean")
+    for k, d in (parts or {}).items():
+        for n, v in d.items():
+            if k not in _SPACES or v.shape != mean[k].shape or np.any(v < 0):
+                raise bad(f"variance_parts/{k}/{n} must be non-negative variances of a space "
+                          f"{list(_SPACES)} shaped as its mean")
