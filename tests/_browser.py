@@ -8,7 +8,9 @@ import pytest
 def browser_check(page_path, shots_dir):
     """Open the page in headless Chromium; return what a user would see: console errors,
     whether pressing play, dragging and switching clips each changed the picture, and the
-    frame label after playing. Skips when Playwright or Chromium is missing."""
+    frame label after playing, whether the picture holds still once paused, and the label
+    after scrubbing to frame index 10 (of the last clip). Only the page's first viewer is
+    driven. Skips when Playwright or Chromium is missing."""
     playwright = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:
@@ -34,6 +36,8 @@ def browser_check(page_path, shots_dir):
             seen["label_after"] = page.locator(".bm-frame").first.text_content()
             page.locator(".bm-play").first.click()  # pause: the picture holds still
             still = canvas.screenshot()
+            page.wait_for_timeout(300)
+            seen["paused_still"] = canvas.screenshot() == still
             box = canvas.bounding_box()
             x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
             page.mouse.move(x, y)
@@ -41,10 +45,10 @@ def browser_check(page_path, shots_dir):
             page.mouse.move(x + 150, y - 40, steps=5)
             page.mouse.up()
             turned = canvas.screenshot(path=shots_dir / "turned.png")
-            n = page.locator(".bm-clip option").count()
+            n = page.locator(".bm-clip").first.locator("option").count()
             page.locator(".bm-clip").first.select_option(index=n - 1)
             switched = canvas.screenshot(path=shots_dir / "switched.png")
-            page.locator(".bm-time").first.fill("0")
+            page.locator(".bm-time").first.fill("10")
             seen["label_scrubbed"] = page.locator(".bm-frame").first.text_content()
         finally:
             browser.close()

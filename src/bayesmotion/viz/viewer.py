@@ -1,7 +1,7 @@
 """An interactive 3-D motion viewer as one self-contained HTML page (no network, no library).
 
 The page plays generated or recorded motion, scrubs through time, orbits the camera (drag;
-wheel or pinch to zoom), overlays sampled rollouts as faint skeletons and the mean +- 2 sd of
+the wheel zooms), overlays sampled rollouts as faint skeletons and the mean +- 2 sd of
 every joint position as a translucent disc, and switches between the clips it was given (e.g.
 one per emotion and an interpolation series precomputed by the report). Its script is plain
 JavaScript written for this page, drawing on a 2-D canvas with a perspective projection, so the
@@ -120,7 +120,8 @@ class ViewerClip:
                 "color": COLORS[a % len(COLORS)], "bones": bones, "joints": shown,
                 "mean": r(self.mean[a]),
                 "sd": None if self.sd is None else r(self.sd[a]),
-                "samples": None if self.samples is None else r(self.samples[a]),
+                "samples": (None if self.samples is None or len(self.samples[a]) == 0
+                            else r(self.samples[a])),
             })
         return {"name": self.name, "group": self.group, "fps": float(self.fps),
                 "n_frames": self.n_frames, "actors": actors}
@@ -139,7 +140,7 @@ def rollout_clip(r: Rollout, name: str, group: str = "",
         var = var + np.asarray(r.sample_var["positions"], dtype=np.float64)
     sd = np.sqrt(np.mean(np.maximum(var, 0.0), axis=-1))  # (A, T, J)
     samples = None
-    if r.samples is not None and max_samples > 0:
+    if r.samples is not None and "positions" in r.samples and max_samples > 0:
         s = np.asarray(r.samples["positions"])[:max_samples]  # (S, A, T, J, 3)
         samples = tuple(s[:, a] for a in range(s.shape[1]))
     A = r.positions.shape[0]
@@ -203,13 +204,15 @@ _SCRIPT = r"""
 (function () {
   "use strict";
   function setup(root) {
+    if (root.dataset.bmReady) return;  // each fragment's script sets up every viewer once
+    root.dataset.bmReady = "1";
     var clips = JSON.parse(root.querySelector("script.bm-data").textContent);
     var canvas = root.querySelector("canvas"), ctx = canvas.getContext("2d");
     var playBtn = root.querySelector(".bm-play"), time = root.querySelector(".bm-time");
     var pick = root.querySelector(".bm-clip"), label = root.querySelector(".bm-frame");
     var showSamples = root.querySelector(".bm-samples"), showSd = root.querySelector(".bm-sd");
     var view = {az: -0.6, el: 0.25, zoom: 1.0}, clip = null, frame = 0, playing = false;
-    var last = null, box = null;
+    var last = null, box = null, pending = null;
     clips.forEach(function (c, i) {
       var o = document.createElement("option");
       o.value = String(i);
@@ -227,6 +230,7 @@ _SCRIPT = r"""
           });
         });
       });
+      if (!(hi[0] >= lo[0])) { lo = [0, 0, 0]; hi = [0, 0, 0]; }  // no joint drawn
       var size = Math.max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-6);
       return {center: [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2],
               floor: lo[1], size: size};
@@ -245,11 +249,14 @@ _SCRIPT = r"""
       var ce = Math.cos(view.el), se = Math.sin(view.el);
       var x1 = ca * x + sa * z, z1 = -sa * x + ca * z;          // turn about Y
       var y2 = ce * y - se * z1, z2 = se * y + ce * z1;         // tilt about X
-      var dist = 2.2 * box.size / view.zoom, depth = Math.max(dist - z2, 0.05 * box.size);
-      var s = 1.54 * Math.min(canvas.width, canvas.height) / depth;  // pixels per data unit
-      return [canvas.width / 2 + s * x1, canvas.height / 2 - s * y2, s];
+      var dist = 2.2 * box.size / view.zoom, depth = dist - z2;
+      var near = 0.05 * box.size, s = 1.54 * Math.min(canvas.width, canvas.height) /
+        Math.max(depth, near);  // pixels per data unit
+      // [x, y, pixels per unit, in front of the camera]
+      return [canvas.width / 2 + s * x1, canvas.height / 2 - s * y2, s, depth > near];
     }
     function line(a, b) {
+      if (!a[3] || !b[3]) return;  // behind the camera
       ctx.beginPath(); ctx.moveTo(a[0], a[1]); ctx.lineTo(b[0], b[1]); ctx.stroke();
     }
     function skeleton(pose, actor, width, alpha) {
@@ -286,7 +293,7 @@ _SCRIPT = r"""
           ctx.globalAlpha = 0.18; ctx.fillStyle = a.color;
           a.joints.forEach(function (j) {
             var r = 2 * a.sd[f][j] * q[j][2];
-            if (r > 0.5) { ctx.beginPath(); ctx.arc(q[j][0], q[j][1], r, 0, 2 * Math.PI);
+            if (r > 0.5 && q[j][3]) { ctx.beginPath(); ctx.arc(q[j][0], q[j][1], r, 0, 2 * Math.PI);
                            ctx.fill(); }
           });
         }
@@ -297,16 +304,19 @@ _SCRIPT = r"""
         (f / clip.fps).toFixed(2) + " s)";
     }
     function tick(now) {
+      pending = null;
       if (!playing) { last = null; return; }
       if (last !== null) {
         frame += (now - last) / 1000 * clip.fps;
         if (frame >= clip.n_frames) frame = frame % clip.n_frames;
       }
-      last = now; draw(); window.requestAnimationFrame(tick);
+      last = now; draw(); pending = window.requestAnimationFrame(tick);
     }
     function play(on) {
       playing = on; playBtn.textContent = on ? "pause" : "play";
-      if (on) window.requestAnimationFrame(tick);
+      if (pending !== null) { window.cancelAnimationFrame(pending); pending = null; }
+      last = null;
+      if (on) pending = window.requestAnimationFrame(tick);
     }
     playBtn.addEventListener("click", function () { play(!playing); });
     time.addEventListener("input", function () { play(false); frame = +time.value; draw(); });
@@ -322,10 +332,13 @@ _SCRIPT = r"""
       view.el = Math.max(-1.5, Math.min(1.5, view.el + (e.clientY - drag[1]) * 0.01));
       drag = [e.clientX, e.clientY]; draw();
     });
-    canvas.addEventListener("pointerup", function () { drag = null; });
+    ["pointerup", "pointercancel", "lostpointercapture"].forEach(function (n) {
+      canvas.addEventListener(n, function () { drag = null; });
+    });
     canvas.addEventListener("wheel", function (e) {
       e.preventDefault();
-      view.zoom = Math.max(0.2, Math.min(8, view.zoom * Math.exp(-e.deltaY * 0.001))); draw();
+      // the camera stays outside the clip's bounding sphere: distance 2.2 / zoom >= 1.1 sizes
+      view.zoom = Math.max(0.2, Math.min(2.0, view.zoom * Math.exp(-e.deltaY * 0.001))); draw();
     }, {passive: false});
     window.addEventListener("resize", draw);
     choose(0);
@@ -339,8 +352,9 @@ def _data_json(clips: Sequence[ViewerClip]) -> str:
     if not clips:
         raise BayesmotionError("the viewer needs at least one clip")
     text = json.dumps([c.to_json() for c in clips], separators=(",", ":"), allow_nan=False)
-    # inside <script>: "</" would end the element, "<!--" open a comment
-    return text.replace("</", "<\\/").replace("<!--", "<\\!--")
+    # inside <script> no "<" may appear ("</script>" would end it, "<!--" open a comment):
+    # "\u003c" is the same character to JSON.parse
+    return text.replace("<", "\\u003c")
 
 
 def viewer_fragment(clips: Sequence[ViewerClip], note: str = "") -> str:
