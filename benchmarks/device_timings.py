@@ -11,9 +11,11 @@ fit again with warm caches), 20 default emcee steps (after a first short run tha
 ``generate`` of 500 frames with its variances and 8 sampled rollouts (first and warm calls).
 
 Each device's part records the JAX backend and device, versions and the machine; ``--merge``
-puts the parts side by side with the GPU / CPU ratio of each warm timing. The README rows say
-whether a GPU is at least as fast as this CPU for ``infer_emotion`` and ``generate`` (the
-device-path target of the posterior-speed issue).
+puts the parts side by side with the GPU / CPU ratio of each warm timing (the fastest warm call
+of each side). The README rows say whether a GPU is at least as fast as this CPU for
+``infer_emotion`` and ``generate``. Each part records its machine, versions and the load
+average at its start and end: the two parts run different Python and jax builds (the GPU
+machine's own), and the CPU's cores may be shared.
 """
 
 from __future__ import annotations
@@ -90,6 +92,8 @@ def part(quick: bool) -> dict:
         gen.append(s)
     out["generate_first_s"], out["generate_warm_s"] = gen[0], gen[1:]
     out["generate_warm_frames_per_s"] = cfg["gen_frames"] / min(gen[1:])
+    out["mode"] = "quick" if quick else "full"
+    out["load_average_at_end"] = machine_info()["load_average_1_5_15"]
     return out
 
 
@@ -115,7 +119,8 @@ def merge(cpu: dict, gpu: dict) -> dict:
                              target, faster if target else None,
                              f"GPU {g:.3g} s, CPU {c:.3g} s"))
     machine = {**cpu["machine"], "load_average_at_start": cpu["machine"]["load_average_1_5_15"]}
-    return {"cpu": cpu, "gpu": gpu, "gpu_over_cpu": ratio, "headline": rows, "mode": "full",
+    return {"cpu": cpu, "gpu": gpu, "gpu_over_cpu": ratio, "headline": rows,
+            "mode": cpu.get("mode", "full"),
             "settings": cpu["settings"], "machine": machine}
 
 

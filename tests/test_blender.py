@@ -6,8 +6,9 @@ Conventions, stated once for both tests:
 
 * Axes and scale: the importer is given ``axis_forward="-Z", axis_up="Y"`` (BVH's Y-up frame to
   Blender's Z-up one) and ``global_scale=SCALE``; the package's positions get the same map,
-  ``SCALE * p @ C.T`` with ``C = CONVERSION`` (x, y, z) -> (x, -z, y), and the matrix Blender
-  reports applying is checked to be ``C``.
+  ``SCALE * p @ C.T`` with ``C = CONVERSION`` (x, y, z) -> (x, -z, y); Blender's own
+  ``axis_conversion`` of those arguments is checked to be ``C``, and the positions compared
+  below check that the importer applied it.
 * Frames: file frame ``t`` (from 0) is keyed at Blender frame ``FRAME_START + t``; the dummy
   rest frame the importer prepends is not keyed.
 * Joints: one bone per joint, named as the joint; an End Site is no bone but the tail of its

@@ -35,9 +35,10 @@ def coordinate_table(post, var_names: Sequence[str] | None = None) -> list[dict]
     import arviz as az
 
     ds = post.idata.posterior
-    names = [v for v in (var_names or ("gamma", "beta", "alpha", "ar")) if v in ds]
+    wanted = list(var_names or ("gamma", "beta", "alpha", "ar"))
+    names = [v for v in wanted if v in ds]
     if not names:
-        raise BayesmotionError(f"the posterior has none of {list(var_names or ())}; it holds "
+        raise BayesmotionError(f"the posterior has none of {wanted}; it holds "
                                f"{sorted(ds.data_vars)}")
     with arviz_without_numba():
         rhat = az.rhat(ds[names])
@@ -49,7 +50,8 @@ def coordinate_table(post, var_names: Sequence[str] | None = None) -> list[dict]
         extra = [d for d in da.dims if d not in ("chain", "draw")]
         flat = da.stack(coordinate=extra) if extra else da.expand_dims(coordinate=[v])
         labels = [v] if not extra else [
-            "[".join(map(str, c)) if isinstance(c, tuple) else str(c)
+            str(c) if not isinstance(c, tuple) else str(c[0]) if len(c) == 1
+            else f"{v}[{','.join(map(str, c))}]"
             for c in flat["coordinate"].values]
         r = np.ravel(rhat[v].values)
         b, t = np.ravel(bulk[v].values), np.ravel(tail[v].values)
