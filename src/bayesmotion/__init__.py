@@ -24,6 +24,7 @@ from bayesmotion.data.emotion import EMOTION_PRESETS, EmotionStyle, apply_emotio
 from bayesmotion.data.mirror import canonical_side, mirror, reframe, rest_frames
 from bayesmotion.datasets.bandai import load_bandai
 from bayesmotion.datasets.handshakes import load_cmu_handshake, load_handshakes
+from bayesmotion.emotion.batch import infer_many
 from bayesmotion.emotion.evidence import calibrate_evidence
 from bayesmotion.emotion.infer import infer_emotion, infer_online
 from bayesmotion.emotion.result import EmotionPosterior
@@ -42,7 +43,8 @@ __all__ = [
     "EmotionStyle", "FittedHGPDM", "ModelFileError", "Motion", "MotionDataset", "PoseCodec",
     "Posterior", "Priors", "Rollout", "Skeleton", "SkeletonMismatchError", "Transition", "Trial",
     "apply_emotion", "calibrate_evidence", "canonical_side", "datasets", "forward_kinematics",
-    "infer_emotion", "infer_online", "load", "load_rollout", "mirror", "reframe", "rest_frames",
+    "infer_emotion", "infer_many", "infer_online", "load", "load_rollout", "mirror", "reframe",
+    "rest_frames",
     "load_bandai", "load_cmu_handshake", "load_handshakes", "parse_bvh", "read_bvh",
     "sample_posterior", "write_bvh",
 ]

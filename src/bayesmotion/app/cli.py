@@ -7,7 +7,8 @@ Commands:
   sample    emcee posterior of a fitted model, saved as netCDF
   generate  motion from a model (mean and sampled rollouts) as BVH, a rollout file and an
             interactive viewer page (optionally a GIF)
-  infer     posterior over the emotion of one clip (one or two BVH files)
+  infer     posterior over the emotion of one clip (one or two BVH files), or of every clip
+            in a folder on a Dask cluster (a table of answers, resumable)
   evaluate  leave-one-trial-out emotion inference on DATA
   view      an interactive 3-D viewer page (HTML, self-contained) of BVH or rollout files
 
@@ -40,6 +41,7 @@ from bayesmotion import validate
 from bayesmotion.app.demo import run_demo
 from bayesmotion.data.files import atomic_write_text
 from bayesmotion.datasets.loaders import load_data
+from bayesmotion.emotion.batch import infer_many
 from bayesmotion.emotion.evidence import calibrate_evidence
 from bayesmotion.emotion.infer import infer_emotion
 from bayesmotion.emotion.ood import OutOfDistributionWarning
@@ -132,7 +134,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--gif", action="store_true", help="also write an animated GIF")
     i = add("infer", "posterior over the emotion of a clip")
     i.add_argument("model")
-    i.add_argument("clips", nargs="+", help="one BVH per actor")
+    i.add_argument("clips", nargs="+",
+                   help="one BVH per actor; or one folder of clips (one file per clip, or "
+                        "<clip>_actor<a>.bvh per actor), inferred in parallel on Dask")
     i.add_argument("--json", action="store_true")
     i.add_argument("--couple", default=None)
     i.add_argument("--seed", type=int, default=0)
@@ -145,6 +149,14 @@ def _parser() -> argparse.ArgumentParser:
                         "projection from the nearest training frames (about 3x faster); "
                         "'levels': that start and one from each emotion level's frames, the "
                         "best optimum kept")
+    i.add_argument("--workers", type=int, default=2,
+                   help="with a folder: processes of the local Dask cluster (default 2)")
+    i.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="with a folder: run on this Dask scheduler (e.g. tcp://host:8786) "
+                        "instead of a local cluster; every worker must read the clips' paths")
+    i.add_argument("--table", default=None, metavar="OUT.csv",
+                   help="with a folder: the table of answers, written as clips finish and "
+                        "resumed if it exists (default FOLDER/emotions.csv)")
     e = add("evaluate", "leave-one-trial-out emotion inference")
     e.add_argument("model")
     e.add_argument("data")
@@ -315,6 +327,8 @@ def _cmd_view(a):
 
 def _cmd_infer(a):
     validate.seed(a.seed, "--seed")
+    if len(a.clips) == 1 and Path(a.clips[0]).is_dir():
+        return _infer_folder(a)
     for c in a.clips:
         validate.input_file(c, "clip")
     m = load(a.model)
@@ -345,6 +359,22 @@ def _cmd_infer(a):
                           "evidence_calibrated": ep.info["evidence_calibrated"]}))
     else:
         print(ep)
+
+
+def _infer_folder(a):
+    validate.integer(a.workers, "--workers", low=1)
+    validate.input_file(a.model, "model")
+    folder = Path(a.clips[0])
+    table = validate.output_file(a.table if a.table else folder / "emotions.csv", "--table")
+    rows = infer_many(a.model, folder, table, workers=a.workers, scheduler=a.scheduler,
+                      seed=a.seed, couple=a.couple, likelihood_power=a.likelihood_power,
+                      emotion_starts=a.emotion_starts)
+    errors = [r for r in rows if r["error"]]
+    flagged = sum(str(r["out_of_distribution"]) == "True" for r in rows)
+    print(f"wrote {table}: {len(rows)} clips, {len(errors)} failed, {flagged} out of "
+          f"distribution")
+    for r in errors[:5]:
+        print(f"warning: {r['clip']}: {r['error']}", file=sys.stderr)
 
 
 def _check_fits(m, ds, model_path, data) -> None:
