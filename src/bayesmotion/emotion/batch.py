@@ -2,7 +2,8 @@
 
 Each clip is one :func:`~bayesmotion.emotion.infer.infer_emotion` call, run as a task on a
 ``dask.distributed`` cluster: a ``LocalCluster`` of ``workers`` processes (one thread each) by
-default, or any cluster given by its scheduler's address or a ``Client``. The model travels to
+default (one XLA and one OpenBLAS thread per worker process, :func:`worker_env`), or any
+cluster given by its scheduler's address or a ``Client``. The model travels to
 each worker once, as the bytes of its model file (the checked, pickle-free format of
 :mod:`bayesmotion.model.archive`), and each worker loads it once; a task then carries only its
 clip's file paths, which every worker must be able to read (a shared file system on a
@@ -106,6 +107,13 @@ def _named(clips, n_actors: int) -> dict[str, tuple[str, ...]]:
     if not out:
         raise BayesmotionError("no clip to infer")
     return out
+
+
+def worker_env() -> dict[str, str]:
+    """Environment of the local cluster's worker processes: one thread each for XLA's CPU pool
+    (``PJRT_NPROC``) and OpenBLAS, as the cluster runs one process per core; a value the caller
+    set in this process's environment is kept."""
+    return {k: os.environ.get(k, "1") for k in ("PJRT_NPROC", "OPENBLAS_NUM_THREADS")}
 
 
 def _model_bytes(model) -> bytes:
@@ -256,7 +264,7 @@ def infer_many(model, clips, out=None, *, client=None, workers: int = 2,
                 client = own = Client(scheduler)
             else:
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                       dashboard_address=None)
+                                       dashboard_address=None, env=worker_env())
                 client = own = Client(cluster)
         try:
             shared = client.scatter(data, broadcast=True, hash=False)
