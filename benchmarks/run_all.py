@@ -48,8 +48,10 @@ BENCHMARKS = [
     "synthesis",
     "bandai_inference",
     "infer_speed",
+    "batch_inference",
     "handshake_inference",
     "posterior_convergence",
+    "jax_versions",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 
