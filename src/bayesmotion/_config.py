@@ -5,12 +5,25 @@ with condition numbers ~1e8), so bayesmotion switches JAX to 64-bit, as numpyro'
 does. Code that wants float32 elsewhere can switch it back after import; bayesmotion's own
 functions cast their inputs to float64 where it matters.
 
-JAX version: jaxlib 0.10.x runs *batched* CPU LAPACK calls (vmapped Cholesky and triangular
-solves, used here over walkers and style blocks) through ``ParallelBatchMap``, which can deadlock
-XLA's intra-op thread pool: every worker waits in ``BlockingCounter::Wait`` and the computation
-never returns. We reproduced it here (a gdb stack of the hung fit shows
-``jax::TriMatrixEquationSolver`` under ``ParallelBatchMap``), so pyproject.toml excludes 0.10.*;
-jaxlib 0.9.x lacks that path.
+XLA's CPU thread pool: jaxlib 0.10 runs a *batched* LAPACK call (a vmapped Cholesky or
+triangular solve, as over walkers and style blocks here, and in the gradient of every Cholesky)
+through ``ParallelBatchMap``: the thread running the call splits the batch into tasks on XLA's
+intra-op pool and blocks until they finish. When as many such calls run at once as the pool has
+threads (XLA runs independent operations of one program concurrently; 2 on the 2-core target),
+every thread of the pool waits and none is left to run the tasks: the computation never returns
+(a gdb stack shows each ``tf_XLAEigen`` thread in ``BlockingCounter::Wait`` under
+``jax::TriMatrixEquationSolver``). On the 2-core target the MAP fit and ``infer_emotion`` hung
+with the default pool (benchmarks/results/jax_versions.json), and so did the reproducer of
+tests/test_jax_deadlock.py in 5 of 5 runs. With a one-thread pool ``ParallelBatchMap`` runs the
+whole batch on the calling thread, so the wait cannot occur. On jaxlib >= 0.10 bayesmotion
+therefore sets ``PJRT_NPROC=1`` (the pool size XLA reads when JAX starts its CPU backend) unless
+the caller set ``PJRT_NPROC`` or ``NPROC``; ``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false``
+does not prevent this deadlock. The cost, on the 2-core target, is in
+benchmarks/results/jax_versions.json. jaxlib 0.9.x runs batched LAPACK calls on one thread and
+keeps XLA's default pool (one thread per core). The setting only takes effect if bayesmotion is
+imported before JAX's first computation in the process; to choose the pool size yourself, set
+``PJRT_NPROC`` before starting Python (on jaxlib 0.10 a number above 1 brings the deadlock
+back).
 
 BLAS threads: JAX's CPU Cholesky and triangular solves call SciPy's OpenBLAS, whose threads
 busy-wait; with the cores shared (XLA's own pool, other processes) the threaded ``potrf`` was
@@ -25,6 +38,8 @@ BLAS call on one thread (e.g. when running several bayesmotion processes side by
 """
 
 import os
+from collections.abc import MutableMapping
+from importlib import metadata
 
 #: True when bayesmotion chose the one-thread default (the caller had not set it; a value this
 #: module set in a parent process and its children inherited counts as not set, hence the
@@ -35,6 +50,34 @@ _MARK = "BAYESMOTION_SET_OPENBLAS_NUM_THREADS"
 BLAS_THREADS_DEFAULTED = os.environ.get("OPENBLAS_NUM_THREADS") in (None, os.environ.get(_MARK))
 if "OPENBLAS_NUM_THREADS" not in os.environ:
     os.environ["OPENBLAS_NUM_THREADS"] = os.environ[_MARK] = "1"
+
+_POOL_MARK = "BAYESMOTION_SET_PJRT_NPROC"
+
+
+def jaxlib_version() -> tuple[int, int]:
+    """(major, minor) of the installed jaxlib, read without importing it; (0, 0) if unknown."""
+    try:
+        major, minor = metadata.version("jaxlib").split(".")[:2]
+        return int(major), int("".join(c for c in minor if c.isdigit()) or 0)
+    except (metadata.PackageNotFoundError, ValueError):
+        return 0, 0
+
+
+def apply_xla_pool_policy(env: MutableMapping[str, str], version: tuple[int, int]) -> bool:
+    """Set ``PJRT_NPROC=1`` in ``env`` for jaxlib ``version`` >= 0.10 unless the caller set
+    ``PJRT_NPROC`` or ``NPROC``; True when it did. A value this function set in a parent
+    process (marked by ``BAYESMOTION_SET_PJRT_NPROC``) counts as not set, so a child process
+    with another jaxlib gets its own default."""
+    if env.get(_POOL_MARK) is not None and env.get(_POOL_MARK) == env.get("PJRT_NPROC"):
+        del env["PJRT_NPROC"], env[_POOL_MARK]
+    if version < (0, 10) or {"PJRT_NPROC", "NPROC"} & env.keys():
+        return False
+    env["PJRT_NPROC"] = env[_POOL_MARK] = "1"
+    return True
+
+
+#: True when bayesmotion sized XLA's CPU pool to one thread (see the module docstring).
+XLA_POOL_DEFAULTED = apply_xla_pool_policy(os.environ, jaxlib_version())
 
 import jax  # noqa: E402
 
