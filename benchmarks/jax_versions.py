@@ -206,14 +206,14 @@ def run(quick: bool, pythons: dict[str, Path] = PYTHONS) -> dict:
             a, b = table[default["jax09"]][m], table[default["jax010"]][m]
             rows.append(headline(f"{m}: jax 0.10 / jax 0.9 (package defaults)",
                                  b / a if a and b else None, "x",
-                                 note=_ms(a) + " vs " + _ms(b)))
+                                 note=f"0.10: {_ms(b)}, 0.9: {_ms(a)}"))
     if "jax010" in present:
         for m in MEASUREMENTS:
             a, b = table["jax010/per_core"][m], table["jax010/one_thread"][m]
             n = hung["jax010/per_core"][m]
             rows.append(headline(f"{m}: jax 0.10 one-thread pool / per-core pool",
                                  b / a if a and b else None, "x",
-                                 note=_ms(a) + " vs " + _ms(b)
+                                 note=f"one thread: {_ms(b)}, per core: {_ms(a)}"
                                  + (f"; per-core pool hung {n}/{cfg['rounds']}" if n else "")))
     return {"settings": {**cfg, "quick": quick, "measurements": list(MEASUREMENTS),
                          "pools": {"one_thread": "PJRT_NPROC=1",
