@@ -358,7 +358,9 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     burn = n_steps // 3
     chain = sampler.get_chain(discard=burn)  # (steps, W, ndim)
     lp = sampler.get_log_prob(discard=burn)
-    tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a coordinate no walker moved
+        tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
+    tau[~np.isfinite(tau)] = np.inf  # it holds no effective sample
     styles = {}
     start = 0
     for k, n in keys:
