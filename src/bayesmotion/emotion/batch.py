@@ -31,6 +31,7 @@ import hashlib
 import io
 import os
 import re
+import socket
 import tempfile
 import time
 import uuid
@@ -148,7 +149,7 @@ def infer_row(model, name: str, paths: Sequence[str], kwargs: dict) -> dict:
 
     levels = list(model.levels["emotion"])
     row = dict.fromkeys(columns(levels), "")
-    row.update(clip=name, files=";".join(paths), worker=f"{os.uname().nodename}:{os.getpid()}")
+    row.update(clip=name, files=";".join(paths), worker=f"{socket.gethostname()}:{os.getpid()}")
     t = time.perf_counter()
     try:
         with warnings.catch_warnings():  # the flag is in the row
