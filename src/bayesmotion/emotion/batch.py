@@ -121,8 +121,10 @@ def _model_bytes(model) -> bytes:
     if isinstance(model, str | os.PathLike):
         from bayesmotion.model.io import load
 
-        load(model)  # checked here, before any worker starts
-        return Path(model).read_bytes()
+        data = Path(model).read_bytes()
+        # checked (errors name the user's file) and kept: _worker_model finds it by digest
+        _MODELS[hashlib.sha256(data).hexdigest()] = load(model)
+        return data
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "model.npz"
         model.save(path)
