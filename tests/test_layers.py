@@ -171,6 +171,8 @@ def test_cholesky_inverse_matches_numpy(rng, path):
     """Both implementations (LAPACK callback on CPU from N = 256, XLA elsewhere), single and
     batched (vmap), float64 and float32; a matrix that is not positive definite gives a NaN
     diagonal, the callers' failure test."""
+    if path == "lapack" and not linalg.HOST_CALLBACK:
+        pytest.skip("jaxlib >= 0.10: bayesmotion does not use the host callback there")
     fn = {"public": linalg.cholesky_inverse, "lapack": linalg._cholesky_inverse_lapack,
           "xla": linalg._cholesky_inverse_xla}[path]
     n = 300
@@ -190,6 +192,18 @@ def test_cholesky_inverse_matches_numpy(rng, path):
     np.testing.assert_allclose(K32, np.linalg.inv(Ks[1]), rtol=2e-3, atol=2e-3)
     bad = Ks[0] - 10 * np.eye(n)
     assert np.all(np.isnan(np.asarray(jax.jit(fn)(jnp.asarray(bad))[0])))
+
+
+@pytest.mark.parametrize("host_callback", [True, False])
+def test_cholesky_inverse_uses_a_host_callback_only_where_allowed(monkeypatch, host_callback):
+    """On CPU from N = 256 the program holds the LAPACK callback only where HOST_CALLBACK
+    allows it (jaxlib < 0.10); otherwise it is callback-free XLA, at every size."""
+    monkeypatch.setattr(linalg, "HOST_CALLBACK", host_callback)
+    for n, expected in [(300, host_callback and jax.default_backend() == "cpu"), (100, False)]:
+        # a fresh function each time: make_jaxpr caches traces by function, not by globals
+        text = str(jax.make_jaxpr(lambda K: linalg.cholesky_inverse(K))(jnp.eye(n)))
+        assert ("pure_callback" in text) == expected, (n, host_callback)
+    assert linalg.HOST_CALLBACK == host_callback
 
 
 def test_lapack_path_restores_the_blas_thread_count(rng):

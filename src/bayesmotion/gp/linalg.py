@@ -9,7 +9,9 @@ factor's diagonal (for log|K|):
   (:func:`bayesmotion.gp.blas.blas_threads`): 17-19 ms at N = 1000 on the 2-core target, against
   33-41 ms for the XLA path below (jaxlib's one-thread potrf takes 11 ms of it, the blocked
   trtri + lauum 24 ms), and 28-30 ms for the same LAPACK calls on one thread;
-- elsewhere (GPU, TPU, small blocks where a callback's overhead dominates) by XLA: Cholesky,
+- elsewhere (GPU, TPU, small blocks where a callback's overhead dominates, and on jaxlib >= 0.10,
+  where a host callback inside a program run by XLA's one-thread CPU pool can wait forever on its
+  own argument; see :mod:`bayesmotion._config`) by XLA: Cholesky,
   then recursive 2x2 block versions of trtri and lauum, about 2/3 N^3 multiply-adds in matrix
   products, against about 3/2 N^3 for a triangular solve with the identity and a full product.
 """
@@ -22,10 +24,13 @@ import numpy as np
 from jax.scipy.linalg import solve_triangular
 from scipy.linalg import get_lapack_funcs
 
+from bayesmotion._config import jaxlib_version
 from bayesmotion.gp.blas import blas_threads
 
 _BLOCK = 128  # leaf size of the recursive inverses; 64-256 time alike at N = 1000 on 2 cores
 _LAPACK_MIN = 256  # below this a host callback costs more than it saves (8 x 100: 1.3 vs 1.2 ms)
+#: Whether the CPU path may use the host callback: not on jaxlib >= 0.10 (module docstring).
+HOST_CALLBACK = jaxlib_version() < (0, 10)
 
 
 def cholesky_inverse(K: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
@@ -40,7 +45,7 @@ def cholesky_inverse(K: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
     Returns:
         (..., N) diagonal of the Cholesky factor and (..., N, N) K^-1, symmetric.
     """
-    if K.shape[-1] < _LAPACK_MIN:
+    if K.shape[-1] < _LAPACK_MIN or not HOST_CALLBACK:
         return _cholesky_inverse_xla(K)
     return jax.lax.platform_dependent(K, cpu=_cholesky_inverse_lapack,
                                       default=_cholesky_inverse_xla)
