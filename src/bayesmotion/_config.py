@@ -25,13 +25,12 @@ imported before JAX's first computation in the process; to choose the pool size 
 ``PJRT_NPROC`` before starting Python (on jaxlib 0.10 a number above 1 brings the deadlock
 back).
 
-jaxlib 0.10 is nevertheless excluded by pyproject.toml: with the one-thread pool, a host
-callback inside a jitted program (the LAPACK path of
-:func:`bayesmotion.gp.linalg.cholesky_inverse`, a ``pure_callback``) hung once in a full test
-run on jax 0.10.2, its thread waiting in ``np.asarray`` on its own argument
-(tests/test_layers.py::test_cholesky_inverse_matches_numpy), and no setting is known yet that
-avoids both hangs. The policy above stays so that a process that has jaxlib 0.10 anyway does
-not meet the batched-LAPACK deadlock.
+Host callbacks: with the one-thread pool, a host callback inside a jitted program (a
+``pure_callback``) can wait forever on its own argument: one hung in a full test run on jax
+0.10.2, its thread waiting in ``np.asarray`` (tests/test_layers.py::
+test_cholesky_inverse_matches_numpy). bayesmotion's only callback, the LAPACK path of
+:func:`bayesmotion.gp.linalg.cholesky_inverse`, is therefore not used on jaxlib >= 0.10
+(``gp.linalg.HOST_CALLBACK``): the XLA path runs there instead.
 
 BLAS threads: JAX's CPU Cholesky and triangular solves call SciPy's OpenBLAS, whose threads
 busy-wait; with the cores shared (XLA's own pool, other processes) the threaded ``potrf`` was
