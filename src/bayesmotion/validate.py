@@ -197,23 +197,29 @@ def _cgroup_room(root: str) -> int | None:
         return None
 
 
-def fit_memory(n_frames: int, n_layers: int, latent_dims: int = 0) -> int:
-    """Bytes of a MAP fit, about ``8 * (GRADIENT_FACTOR * n_layers * N**2 + LBFGS_COPIES * N *
-    latent_dims)`` for N training frames: every layer's N x N kernel arrays under a
-    value-and-gradient, plus L-BFGS's copies of the latent coordinates (``latent_dims`` per
-    frame, summed over actors and the interaction layer)."""
+def fit_memory(n_frames: int, n_layers: int, latent_dims: int = 0,
+               inducing: int | None = None) -> int:
+    """Bytes of a MAP fit, about ``8 * (GRADIENT_FACTOR * n_layers * N * C + LBFGS_COPIES * N *
+    latent_dims)`` for N training frames: every layer's N x C kernel arrays under a
+    value-and-gradient (C = N for the exact model, min(N, M) for a sparse one with M inducing
+    points), plus L-BFGS's copies of the latent coordinates (``latent_dims`` per frame, summed
+    over actors and the interaction layer)."""
     N = int(n_frames)
-    return BYTES * (GRADIENT_FACTOR * int(n_layers) * N * N + LBFGS_COPIES * N * int(latent_dims))
+    C = N if inducing is None else min(N, int(inducing))
+    return BYTES * (GRADIENT_FACTOR * int(n_layers) * N * C + LBFGS_COPIES * N * int(latent_dims))
 
 
-def sample_memory(n_walkers: int, n_steps: int, ndim: int, n_frames: int, n_layers: int) -> int:
+def sample_memory(n_walkers: int, n_steps: int, ndim: int, n_frames: int, n_layers: int,
+                  inducing: int | None = None) -> int:
     """Bytes of a posterior sampling run: the chain, ``8 * CHAIN_COPIES * W * S * ndim`` for W
     walkers and S steps, plus the conditional MAP's fit (:func:`fit_memory`), plus one
-    half-ensemble of log-posterior evaluations, ``8 * EVAL_FACTOR * (W // 2) * n_layers * N**2``."""
+    half-ensemble of log-posterior evaluations, ``8 * EVAL_FACTOR * (W // 2) * n_layers * N * C``
+    (C as in :func:`fit_memory`)."""
     W, N = int(n_walkers), int(n_frames)
+    C = N if inducing is None else min(N, int(inducing))
     chain = BYTES * CHAIN_COPIES * W * int(n_steps) * int(ndim)
-    batch = BYTES * EVAL_FACTOR * max(W // 2, 1) * int(n_layers) * N * N
-    return chain + fit_memory(N, n_layers) + batch
+    batch = BYTES * EVAL_FACTOR * max(W // 2, 1) * int(n_layers) * N * C
+    return chain + fit_memory(N, n_layers, inducing=inducing) + batch
 
 
 def generate_memory(n_frames: int, n_samples: int, n_joints: int, n_train_frames: int,

@@ -107,6 +107,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="model joint angles (default; the model generates motion) or the 18 "
                         "affective pose features of every frame (infers emotion across "
                         "actions; cannot generate)")
+    f.add_argument("--inducing", type=int, default=None, metavar="M",
+                   help="the sparse model with M inducing points per layer (O(N M^2) instead "
+                        "of O(N^3); for corpora beyond a few thousand frames)")
     s = add("sample", "emcee posterior of a fitted model")
     s.add_argument("model")
     s.add_argument("--out", required=True)
@@ -249,16 +252,19 @@ def _cmd_fit(a):
     validate.integer(a.max_iter, "--max-iter", low=1)
     validate.integer(a.latent_dim, "--latent-dim", low=1)
     validate.integer(a.interaction_dim, "--interaction-dim", low=1)
+    if a.inducing is not None:
+        validate.integer(a.inducing, "--inducing", low=2)
     validate.output_file(a.out, "--out")
     _check_data(a.data, a.fps)
     ds = load_data(a.data, a.fps)
     N = sum(t.n_frames for t in ds)
     validate.check_memory(
-        validate.fit_memory(N, ds.n_actors + 2, ds.n_actors * a.latent_dim + a.interaction_dim),
+        validate.fit_memory(N, ds.n_actors + 2, ds.n_actors * a.latent_dim + a.interaction_dim,
+                            a.inducing),
         f"fitting {N} frames")
     m = HGPDM(latent_dim=a.latent_dim, interaction_dim=a.interaction_dim,
               rest_frames=a.rest_frames, canonical_side=a.canonical_side,
-              pose_space=a.pose_space).fit(
+              pose_space=a.pose_space, inducing=a.inducing).fit(
         ds, max_iter=a.max_iter)
     m.save(a.out)
     d = m.diagnostics
@@ -423,7 +429,8 @@ def _cmd_evaluate(a):
     ds = load_data(a.data, m.fps)
     _check_fits(m, ds, a.model, a.data)
     N = sum(t.n_frames for t in ds)
-    validate.check_memory(validate.fit_memory(N, m.n_actors + 2), f"refitting {N} frames")
+    validate.check_memory(validate.fit_memory(N, m.n_actors + 2, inducing=m.spec.inducing),
+                          f"refitting {N} frames")
     res = leave_one_out(ds, m, refit_iter=a.refit_iter, calibrate=a.calibrate,
                         infer_kwargs={"emotion_starts": a.emotion_starts})
     print(format_confusion(res))

@@ -70,7 +70,7 @@ from bayesmotion.inference.posterior import Posterior
 from bayesmotion.inference.target import capped_covariance, draw_start, in_halves
 from bayesmotion.model.generate import style_coords
 from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style, style_to_simplex
-from bayesmotion.model.predict import style_vectors
+from bayesmotion.model.predict import sparse_layers, style_vectors
 from bayesmotion.shapes import padded_length
 from bayesmotion.validate import check_infer_args, check_infer_memory
 
@@ -220,7 +220,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
     """
     check_infer_args(seed, n_walkers, n_steps, n_draws, couple, styles, prior)
     fitted = model.model if isinstance(model, Posterior) else model
-    check_infer_memory(clip, fitted.fps, len(fitted.data.trial_of_frame), fitted.n_actors + 2,
+    check_infer_memory(clip, fitted.fps, fitted.predictor_rows, fitted.n_actors + 2,
                        n_walkers, n_steps)
     if emotion_starts not in ("nearest", "levels", "vertices"):
         raise BayesmotionError(f"emotion_starts must be 'nearest', 'levels' or 'vertices', "
@@ -430,10 +430,15 @@ def _ood_message(ood: dict, weight) -> str:
 def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:
     """:func:`bayesmotion.emotion.ood.assess` of the projected clip; the training reference is
     cached with a fitted model's own predictor."""
-    if P is model.predictor():
+    if P is model.predictor() or model.spec.inducing is not None:
+        # a sparse model's reference needs its training rows, which its predictors (inducing
+        # inputs only) do not hold: its MAP's reference serves every draw
         if "ood_reference" not in model._cache:
+            sparse = (None if model.spec.inducing is None else sparse_layers(
+                model.spec, model.data, {k: jnp.asarray(v) for k, v in model.params.items()},
+                model.diagnostics.get("jitter", 1e-8)))
             model._cache["ood_reference"] = training_reference(
-                P, model.data.trial_of_frame, model.spec.order)
+                model.predictor(), model.data.trial_of_frame, model.spec.order, sparse)
         reference = model._cache["ood_reference"]
     else:  # a posterior draw's predictor
         reference = training_reference(P, model.data.trial_of_frame, model.spec.order)

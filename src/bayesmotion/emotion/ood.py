@@ -53,9 +53,11 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from bayesmotion.gp.sparse import held_out_blocks
 from bayesmotion.model.predict import (
     LayerFit,
     Predictor,
+    SparseLayer,
     noise_variances,
     predict_bottom,
     predict_dynamics,
@@ -85,20 +87,28 @@ def held_out_z2(fit: LayerFit, groups: np.ndarray) -> np.ndarray:
     return held_out_stats(fit, groups)[0]
 
 
-def held_out_stats(fit: LayerFit, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def held_out_stats(fit: LayerFit | SparseLayer, groups: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """(z2, nlpd), each (M,): every training row's standardised squared residual and negative
     log predictive density per output column (nats) when its group is held out (module
-    docstring): nlpd = (z2 + log(2 pi v)) / 2 with v = (C^-1)_tt its predictive variance."""
-    M = fit.A.shape[0]
+    docstring): nlpd = (z2 + log(2 pi v)) / 2 with v = (C^-1)_tt its predictive variance.
+
+    ``fit``: an exact layer's conditioned fit, or a sparse layer
+    (:func:`bayesmotion.model.predict.sparse_layers`), whose K is its approximation
+    Q + noise I, inverted by Woodbury (:func:`bayesmotion.gp.sparse.held_out_blocks`)."""
+    M = fit.outputs.shape[0] if isinstance(fit, SparseLayer) else fit.A.shape[0]
     z2 = np.empty(M)
     var = np.empty(M)
     for g in np.unique(groups):
         rows = np.flatnonzero(groups == g)
-        E = jnp.zeros((M, rows.size)).at[rows, np.arange(rows.size)].set(1.0)
-        V = whiten(fit, E)
-        C = V.T @ V  # [K^-1]_bb
+        if isinstance(fit, SparseLayer):
+            C, KinvY = held_out_blocks(fit.parts, fit.outputs, rows)
+        else:
+            E = jnp.zeros((M, rows.size)).at[rows, np.arange(rows.size)].set(1.0)
+            V = whiten(fit, E)
+            C, KinvY = V.T @ V, fit.A[rows]  # [K^-1]_bb, [K^-1 Y]_b
         Cinv = jnp.linalg.inv(C)
-        r = Cinv @ fit.A[rows]
+        r = Cinv @ KinvY
         z2[rows] = np.asarray(jnp.mean(r**2, axis=1) / jnp.diag(Cinv))
         var[rows] = np.asarray(jnp.diag(Cinv))
     return z2, 0.5 * (z2 + np.log(2 * np.pi * var))
@@ -109,22 +119,29 @@ def _summary(z: np.ndarray) -> dict:
             "threshold": float(np.quantile(z, REFERENCE_QUANTILE))}
 
 
-def training_reference(P: Predictor, trial_of_frame: np.ndarray, order: int) -> dict:
+def training_reference(P: Predictor, trial_of_frame: np.ndarray, order: int,
+                       sparse: dict | None = None) -> dict:
     """Per statistic (:data:`STATISTICS`): the training frames' held-out-recording values
     (bottom: averaged over actors), their median and ``REFERENCE_QUANTILE`` quantile.
 
     Args:
         trial_of_frame: (N,) training recording of every frame; order: the dynamics' order
             (its outputs are every recording's frames after the first ``order``).
+        sparse: a sparse model's :func:`bayesmotion.model.predict.sparse_layers` (its
+            predictor holds the inducing inputs, not the training rows); None for an exact one.
     """
     tof = np.asarray(trial_of_frame)
-    bottom = [held_out_stats(LayerFit(L, A), tof)
-              for L, A in zip(P.bottom_Linv, P.bottom_A, strict=True)]
+    if sparse is not None:
+        layers, dyn_layer = sparse["bottom"], sparse["dynamics"]
+    else:
+        layers = [LayerFit(L, A) for L, A in zip(P.bottom_Linv, P.bottom_A, strict=True)]
+        dyn_layer = P.dyn
+    bottom = [held_out_stats(fit, tof) for fit in layers]
     starts = np.flatnonzero(np.r_[True, tof[1:] != tof[:-1]])
     first = np.zeros(tof.size, bool)
     for k in range(order):
         first[starts + k] = True
-    dyn = held_out_stats(P.dyn, tof[~first])
+    dyn = held_out_stats(dyn_layer, tof[~first])
     return {"bottom": _summary(np.mean([b[0] for b in bottom], axis=0)),
             "bottom_density": _summary(np.mean([b[1] for b in bottom], axis=0)),
             "dynamics": _summary(dyn[0]), "dynamics_density": _summary(dyn[1])}

@@ -54,6 +54,14 @@ def style_gram(Sa: Sequence[jnp.ndarray], Sb: Sequence[jnp.ndarray]) -> jnp.ndar
     return G
 
 
+def style_gram_diag(S: Sequence[jnp.ndarray], n: int) -> jnp.ndarray:
+    """Diagonal of style_gram(S, S), prod_f |s_f|^2, (n,) (ones without factors)."""
+    d = jnp.ones(n)
+    for s in S:
+        d = d * jnp.sum(s * s, -1)
+    return d
+
+
 def bottom_kernel(A, B, gamma):
     """Bottom layer X -> Y, eq. 2 without noise: gamma1 exp(-gamma2/2 |x - x'|^2)."""
     return rbf(A, B, gamma[0], gamma[1])

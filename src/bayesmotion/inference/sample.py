@@ -172,6 +172,6 @@ def _check_sample_memory(target, method, n_walkers, n_chains, n_steps, burn) -> 
     else:
         walkers, steps = (n_walkers or 2 * ndim + 2), n_steps
     need = validate.sample_memory(walkers, steps, ndim, len(model.data.trial_of_frame),
-                                  model.n_actors + 2)
+                                  model.n_actors + 2, model.spec.inducing)
     validate.check_memory(need, f"sampling {steps} steps of {walkers} walkers over {ndim} "
                                 f"coordinates")

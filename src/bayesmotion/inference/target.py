@@ -10,7 +10,7 @@ from jax.flatten_util import ravel_pytree
 
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.logpost import LAYERS
-from bayesmotion.model.params import AR_KEY, STYLE_PREFIX, simplex_to_style
+from bayesmotion.model.params import AR_KEY, LATENT_KEYS, STYLE_PREFIX, simplex_to_style
 from bayesmotion.optim.minimize import map_optimize
 
 SAMPLED_HYPER = ("log_gamma", "log_beta", "log_alpha", AR_KEY)  # those the model has
@@ -61,7 +61,8 @@ class Target:
         which = LAYERS if block is None else BLOCKS[block]
         x0, self.unravel = ravel_pytree({k: jnp.asarray(v) for k, v in start.items()})
         self.x0 = np.asarray(x0)
-        self.fixed = {"X": jnp.asarray(model.params["X"]), "I": jnp.asarray(model.params["I"])}
+        # the latents (and a sparse model's inducing inputs) stay at the MAP
+        self.fixed = {k: jnp.asarray(model.params[k]) for k in LATENT_KEYS if k in model.params}
         self.names = _flat_names(start)
         lp = model.log_posterior_fn
         jitter = self.jitter

@@ -10,9 +10,15 @@ from bayesmotion.data.motion import MotionDataset
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.data import ModelData, fit_codecs, prepare_data
 from bayesmotion.model.fitted import FittedHGPDM, trial_records
-from bayesmotion.model.layers import DynamicsIndex
+from bayesmotion.model.layers import DynamicsIndex, InducingPlan
 from bayesmotion.model.logpost import LogPosterior
-from bayesmotion.model.params import AR_KEY, STYLE_PREFIX, ar_pacf, simplex_to_style
+from bayesmotion.model.params import (
+    AR_KEY,
+    INDUCING_KEYS,
+    STYLE_PREFIX,
+    ar_pacf,
+    simplex_to_style,
+)
 from bayesmotion.optim.minimize import CONVERGENCE_RTOL, map_optimize
 
 if TYPE_CHECKING:
@@ -69,6 +75,10 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tup
                 raise BayesmotionError(f"init[{k!r}] has shape {np.shape(v)}, this dataset "
                                        f"needs {np.shape(params0[k])}")
         params0.update({k: np.asarray(v) for k, v in init.items()})
+        if spec.inducing is not None and not set(INDUCING_KEYS) & set(init):
+            # inducing inputs where init put the latents, not where PCA did
+            params0.update(initial_inducing(np.asarray(params0["X"]), np.asarray(params0["I"]),
+                                            logp.index, spec.inducing))
     params, diag = map_optimize(logp, params0, max_iter=max_iter, gtol=gtol, rtol=rtol,
                                 max_seconds=max_seconds, progress=progress, desc="MAP fit")
     return FittedHGPDM(spec=spec, params=params, codecs=codecs, levels=dict(dataset.levels),
@@ -111,9 +121,22 @@ def init_params(spec: HGPDM, data: ModelData, seed: int = 0, jitter_scale: float
         "log_beta": np.log([var_z, 1.0, 100.0 / var_z]),
         "log_alpha": np.log([var_i] + [1.0] * o + lin + [100.0 / var_i]),
     }
+    index = DynamicsIndex(data.lengths, o)
     if spec.stable_dynamics:
-        params[AR_KEY] = initial_ar(I, DynamicsIndex(data.lengths, o))
+        params[AR_KEY] = initial_ar(I, index)
+    if spec.inducing is not None:
+        params.update(initial_inducing(X, I, index, spec.inducing))
     return params
+
+
+def initial_inducing(X: np.ndarray, I: np.ndarray, index: DynamicsIndex, m: int) -> dict:
+    """The sparse model's inducing inputs at the evenly spaced training frames of
+    :class:`~bayesmotion.model.layers.InducingPlan` (their latents, and the dynamics' lags of
+    its output rows)."""
+    plan = InducingPlan(I.shape[0], index, m)
+    lags = np.stack([I[ix] for ix in index.lag])  # (o, n_out, Q_I)
+    return {"Xu": X[:, plan.frames].copy(), "Iu": I[plan.frames].copy(),
+            "Du": lags[:, plan.outs].copy()}
 
 
 def initial_ar(I: np.ndarray, index: DynamicsIndex, max_pacf: float = 0.95) -> np.ndarray:

@@ -83,6 +83,13 @@ class FittedHGPDM:
 
     # ------------------------------------------------------------------ accessors
     @property
+    def predictor_rows(self) -> int:
+        """Rows each conditioned layer holds: the training frames, or for a sparse model its
+        inducing points (at most the frames)."""
+        N = len(self.data.trial_of_frame)
+        return N if self.spec.inducing is None else min(N, self.spec.inducing)
+
+    @property
     def n_actors(self) -> int:
         return len(self.codecs)
 

@@ -268,7 +268,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
                                                     **styles})
     check_generate_memory(n_frames, n_samples,
                           sum(model.skeleton(a).n_joints for a in range(model.n_actors)),
-                          len(model.data.trial_of_frame), model.n_actors + 2)
+                          model.predictor_rows, model.n_actors + 2)
     check_decodes(model)
     if n_frames <= model.spec.order:
         raise BayesmotionError(f"n_frames must exceed the dynamics order ({model.spec.order})")

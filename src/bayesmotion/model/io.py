@@ -206,6 +206,10 @@ def _check_shapes(model, path):
                 "log_alpha": (2 + o,) if spec.stable_dynamics else (2 + 2 * o,)}
     if spec.stable_dynamics:
         expected[AR_KEY] = (o,)
+    if spec.inducing is not None:
+        m, m_dyn = min(spec.inducing, N), min(spec.inducing, N - o * R)
+        expected.update(Xu=(A, m, spec.latent_dim), Iu=(m, spec.interaction_dim),
+                        Du=(o, m_dyn, spec.interaction_dim))
     if set(data.onehot) != set(spec.factors) or not set(spec.factors) <= set(model.levels):
         bad(f"labels of factors {sorted(data.onehot)} (levels of {sorted(model.levels)}) do not "
             f"match the specification's factors {sorted(spec.factors)}")

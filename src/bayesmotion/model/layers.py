@@ -9,7 +9,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from bayesmotion.gp import kernels
+from bayesmotion.gp import kernels, sparse
 from bayesmotion.gp.densities import LOG_2PI, Blocks, blocked_gaussian_loglik, gaussian_loglik
 
 
@@ -66,6 +66,27 @@ class DynamicsIndex:
         self.trial_of_frame = np.repeat(np.arange(len(lengths)), lengths)
 
 
+def evenly_spaced(n: int, m: int) -> np.ndarray:
+    """min(m, n) distinct indices spread evenly over range(n), first and last included."""
+    m = min(int(m), int(n))
+    return np.round(np.linspace(0, n - 1, m)).astype(int) if m > 1 else np.zeros(1, int)
+
+
+class InducingPlan:
+    """Which training rows give the sparse model's inducing points their style (static).
+
+    Inducing point m of the bottom and interaction layers starts at training frame
+    ``frames[m]`` and keeps that frame's style for good (its inputs move, its style follows
+    the frame's trial, learned vectors included); those of the dynamics layer likewise with
+    the dynamics' output rows ``outs``. Evenly spaced, so every trial and style cell gets a
+    share in proportion to its frames.
+    """
+
+    def __init__(self, n_frames: int, index: DynamicsIndex, m: int):
+        self.frames = evenly_spaced(n_frames, m)
+        self.outs = evenly_spaced(index.out.size, m)
+
+
 def dynamics_targets(I, index: DynamicsIndex, ar=None):
     """(lags, outputs) of the dynamics GP: the outputs less the explicit autoregressive mean
     sum_l a_l i_{t-l} when ``ar`` (o,) is given (the GP then models what the stable linear
@@ -89,6 +110,41 @@ def gpdm_loglik(I, S, alpha, index: DynamicsIndex, jitter=0.0, prior_var=1.0, ar
     K = kernels.dynamics_kernel(lags, lags, S_out, S_out, alpha)
     K = K + jnp.eye(out.shape[0]) / kernels.dynamics_noise_precision(alpha)
     ll = gaussian_loglik(K, out, jitter)
+    return ll + restart_log_prior(I[index.first], prior_var)
+
+
+def _noise(kdiag, noise_var, jitter):
+    """The noise variance plus the dense path's jitter, jitter * mean(diag(K + noise I))."""
+    return noise_var + jitter * (jnp.mean(kdiag) + noise_var)
+
+
+def sparse_gplvm_loglik(U, X, Y, gamma, jitter=0.0):
+    """Bottom layer, sparse: Titsias's bound of log p(Y | X, gamma) with inducing inputs U."""
+    kdiag = jnp.full(X.shape[0], gamma[0])
+    return sparse.sparse_loglik(kernels.bottom_kernel(U, U, gamma),
+                                kernels.bottom_kernel(U, X, gamma), kdiag, Y,
+                                _noise(kdiag, 1.0 / gamma[2], jitter))
+
+
+def sparse_style_gplvm_loglik(U, S_u, I, Z, S, beta, jitter=0.0):
+    """Interaction layer, sparse: inducing inputs U (M, Q_I) with styles S_u (per factor)."""
+    kdiag = beta[0] * kernels.style_gram_diag(S, I.shape[0])
+    return sparse.sparse_loglik(kernels.interaction_kernel(U, U, S_u, S_u, beta),
+                                kernels.interaction_kernel(U, I, S_u, S, beta), kdiag, Z,
+                                _noise(kdiag, 1.0 / beta[2], jitter))
+
+
+def sparse_gpdm_loglik(U, S_u, I, S, alpha, index: DynamicsIndex, jitter=0.0, prior_var=1.0,
+                       ar=None):
+    """Dynamics layer, sparse: inducing lag inputs U (o, M, Q_I) with styles S_u; S per-frame
+    styles of the outputs (as :func:`gpdm_loglik`)."""
+    lags, out = dynamics_targets(I, index, ar)
+    S_out = [s[index.out] for s in S]
+    kdiag = kernels.dynamics_diag(lags, S_out, alpha)
+    noise = _noise(kdiag, 1.0 / kernels.dynamics_noise_precision(alpha), jitter)
+    ll = sparse.sparse_loglik(kernels.dynamics_kernel(list(U), list(U), S_u, S_u, alpha),
+                              kernels.dynamics_kernel(list(U), lags, S_u, S_out, alpha),
+                              kdiag, out, noise)
     return ll + restart_log_prior(I[index.first], prior_var)
 
 

@@ -75,9 +75,11 @@ class LogPosterior:
     """The joint log-posterior of eq. 12 as a pure function of the parameter dict.
 
     ``LogPosterior(spec, data)(params, jitter)`` -> scalar; -inf outside the support.
-    While a layer's style vectors are the fixed one-hot labels its kernel matrix is exactly
-    block-diagonal by style cell and is factorised block by block (``dense=True`` forces the
-    dense path; tests check both agree).
+    With ``spec.inducing`` every layer is its sparse bound (:mod:`bayesmotion.gp.sparse`),
+    with the inducing inputs ``Xu``, ``Iu``, ``Du`` in ``params``. Otherwise, while a layer's
+    style vectors are the fixed one-hot labels its kernel matrix is exactly block-diagonal by
+    style cell and is factorised block by block (``dense=True`` forces the dense path; tests
+    check both agree).
     The instance holds only static bookkeeping (indices, data), so it is safe to close over
     inside ``jit``.
     """
@@ -95,6 +97,9 @@ class LogPosterior:
         # Block-diagonal plans, used while the layer's style vectors are the fixed one-hot labels
         self.int_blocks = densities.Blocks(int_cells) if int_cells.size else None
         self.dyn_blocks = densities.Blocks(dyn_cells) if dyn_cells.size else None
+        # the sparse model's inducing points (HGPDM(inducing=M)); None: the exact model
+        self.inducing = (None if spec.inducing is None else
+                         layers.InducingPlan(int(data.lengths.sum()), self.index, spec.inducing))
 
     def _fixed(self, params, factors) -> bool:
         return all(STYLE_PREFIX + f not in params for f in factors)
@@ -121,7 +126,11 @@ class LogPosterior:
         X, I = params["X"], params["I"]
         A = X.shape[0]
         terms = {k: jnp.zeros(()) for k in LAYERS}
-        if "bottom" in which:
+        if "bottom" in which and self.inducing is not None:
+            terms["bottom"] = sum(layers.sparse_gplvm_loglik(
+                params["Xu"][a], X[a], jnp.asarray(self.data.Y[a]), h["gamma"], jitter)
+                for a in range(A))
+        elif "bottom" in which:
             terms["bottom"] = sum(densities.gplvm_loglik(X[a], jnp.asarray(self.data.Y[a]),
                                                       h["gamma"], jitter) for a in range(A))
         if "interaction" in which:
@@ -136,6 +145,10 @@ class LogPosterior:
 
     def _interaction(self, params, I, Z, beta, jitter):
         fi = self.spec.interaction_factors
+        if self.inducing is not None:
+            S = self.frame_styles(params, fi)
+            S_u = [s[self.inducing.frames] for s in S]
+            return layers.sparse_style_gplvm_loglik(params["Iu"], S_u, I, Z, S, beta, jitter)
         if self.dense or self.int_blocks is None or not self._fixed(params, fi):
             return layers.style_gplvm_loglik(I, Z, self.frame_styles(params, fi), beta, jitter)
         return layers.blocked_style_gplvm_loglik(I, Z, beta, self.int_blocks, jitter)
@@ -143,6 +156,11 @@ class LogPosterior:
     def _dynamics(self, params, I, alpha, jitter):
         fd, v0 = self.spec.dynamics_factors, self.spec.priors.init_var
         ar = ar_of(params)
+        if self.inducing is not None:
+            S = self.frame_styles(params, fd)
+            S_u = [s[self.index.out][self.inducing.outs] for s in S]
+            return layers.sparse_gpdm_loglik(params["Du"], S_u, I, S, alpha, self.index,
+                                             jitter, v0, ar)
         if self.dense or self.dyn_blocks is None or not self._fixed(params, fd):
             return layers.gpdm_loglik(I, self.frame_styles(params, fd), alpha, self.index,
                                       jitter, v0, ar)

@@ -15,7 +15,16 @@ atanh_pacf    (o,)                AR coefficients           partial autocorrelat
                                   (:func:`ar_coefficients`) each Uniform(-1, 1)
                                   (only with ``dynamics_linear="stable"``, the default)
 style:<f>     (K_f, K_f - 1)      simplex (stick-breaking)  Dirichlet(1 + kappa * onehot(level))
+Xu            (A, M, Q_X)         identity                  none: variational parameters
+Iu            (M, Q_I)            identity                  none: variational parameters
+Du            (o, M', Q_I)        identity                  none: variational parameters
 ============  ==================  ========================  =====================================
+
+``Xu``, ``Iu`` and ``Du`` exist only in the sparse model (``HGPDM(inducing=M)``): the inducing
+inputs of the bottom layer (per actor), of the interaction layer and of the dynamics layer (its
+o lags; M' = min(M, number of dynamics outputs)). They are parameters of the variational bound,
+not of the model, so they have no prior; they are fitted with the latents and held fixed with
+them by the samplers.
 
 Log-densities are evaluated in the unconstrained space and include the log-det-Jacobian of
 every transform (as numpyro's ``potential_energy`` does). A Normal prior on ``log theta`` *is* the
@@ -186,6 +195,10 @@ class StylePrior:
 
 
 AR_KEY = "atanh_pacf"
+#: the sparse model's inducing inputs (bottom, interaction, dynamics)
+INDUCING_KEYS = ("Xu", "Iu", "Du")
+#: what the samplers hold fixed at the MAP: the latents and, in a sparse model, its inducing inputs
+LATENT_KEYS = ("X", "I", *INDUCING_KEYS)
 
 
 def log_prior_hyper(params: dict, priors: Priors, order: int) -> jnp.ndarray:

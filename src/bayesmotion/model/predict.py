@@ -7,6 +7,11 @@ stack one per draw and ``vmap`` over them. For a new input ``u`` with style ``s`
     mean(u) = k(u, U)^T A,      var(u) = k(u, u) - |L^-1 k(U, u)|^2      (per output dimension)
 
 (the noise variance is added by callers that predict noisy outputs).
+
+A sparse model (``HGPDM(inducing=M)``) is conditioned through its inducing inputs, which then
+stand where the training inputs stand above (U, the weights and the factor of
+:mod:`bayesmotion.gp.sparse`): every prediction below serves both unchanged, at O(M) per input
+for the mean and O(M^2) for the variance.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.linalg import cho_solve
 
-from bayesmotion.gp import densities, kernels
+from bayesmotion.gp import densities, kernels, sparse
 from bayesmotion.gp.linalg import triangular_inverse
 from bayesmotion.model import layers
 from bayesmotion.model.logpost import ar_of, constrained, trial_styles
@@ -193,7 +198,89 @@ def condition(model, params: dict | None = None, jitter: float | None = None,
     return fn(params, jnp.asarray(jitter, dtype=jnp.float64))
 
 
+class SparseLayer(NamedTuple):
+    """One factored sparse layer: its M x M parts (:class:`bayesmotion.gp.sparse.SparseParts`),
+    training outputs, inducing inputs and their styles (per factor)."""
+
+    parts: sparse.SparseParts
+    outputs: jnp.ndarray
+    inputs: jnp.ndarray
+    styles: tuple
+
+
+def _sparse_layer(Kuu, Kuf, kdiag, outputs, noise_var, jitter, inputs, styles) -> SparseLayer:
+    noise = noise_var + jitter * (jnp.mean(kdiag) + noise_var)  # the dense path's jitter
+    return SparseLayer(sparse.sparse_parts(Kuu, Kuf, outputs, noise), outputs, inputs,
+                       tuple(styles))
+
+
+def sparse_layers(spec, data, params, jitter) -> dict:
+    """The sparse model's layers factored at ``params``: {"dynamics": SparseLayer (outputs: the
+    dynamics targets less the autoregressive mean), "interaction": SparseLayer, "bottom": one
+    per actor}. :func:`condition` makes its predictor from them, and the out-of-distribution
+    reference (:mod:`bayesmotion.emotion.ood`) the training rows' held-out residuals."""
+    h = constrained(params)
+    index = layers.DynamicsIndex(data.lengths, spec.order)
+    plan = layers.InducingPlan(int(np.sum(data.lengths)), index, spec.inducing)
+    S = trial_styles(params, data)
+    tof = data.trial_of_frame
+    X, I = params["X"], params["I"]
+    lags, out = layers.dynamics_targets(I, index, ar_of(params))
+    S_out = [S[f][tof][index.out] for f in spec.dynamics_factors]
+    Su = [s[plan.outs] for s in S_out]
+    U, alpha = list(params["Du"]), h["alpha"]
+    dyn = _sparse_layer(kernels.dynamics_kernel(U, U, Su, Su, alpha),
+                        kernels.dynamics_kernel(U, lags, Su, S_out, alpha),
+                        kernels.dynamics_diag(lags, S_out, alpha), out,
+                        1.0 / kernels.dynamics_noise_precision(alpha), jitter, params["Du"], Su)
+    S_int = [S[f][tof] for f in spec.interaction_factors]
+    Su = [s[plan.frames] for s in S_int]
+    Iu, beta = params["Iu"], h["beta"]
+    inter = _sparse_layer(kernels.interaction_kernel(Iu, Iu, Su, Su, beta),
+                          kernels.interaction_kernel(Iu, I, Su, S_int, beta),
+                          beta[0] * kernels.style_gram_diag(S_int, I.shape[0]),
+                          jnp.concatenate(list(X), axis=1), 1.0 / beta[2], jitter, Iu, Su)
+    bottom, gamma = [], h["gamma"]
+    for a in range(X.shape[0]):
+        Xu = params["Xu"][a]
+        bottom.append(_sparse_layer(
+            kernels.bottom_kernel(Xu, Xu, gamma), kernels.bottom_kernel(Xu, X[a], gamma),
+            jnp.full(X.shape[1], gamma[0]), jnp.asarray(data.Y[a]), 1.0 / gamma[2], jitter,
+            Xu, ()))
+    return {"dynamics": dyn, "interaction": inter, "bottom": bottom}
+
+
+def _level_vectors(spec, data, params) -> dict:
+    """factor -> (K_f, K_f) style vector of every level (the identity unless learned)."""
+    return {f: style_to_simplex(params[STYLE_PREFIX + f]) if STYLE_PREFIX + f in params
+            else jnp.eye(data.onehot[f].shape[1]) for f in spec.factors}
+
+
+def _sparse_fit(layer: SparseLayer) -> LayerFit:
+    """A sparse layer's predictive in the exact one's form: weights against the inducing
+    inputs and a dense (unpacked) factor."""
+    W, R = sparse.predictive_weights(layer.parts)
+    return LayerFit({"leaf": R}, W)
+
+
+def _condition_sparse(spec, data, params, jitter) -> Predictor:
+    """:func:`_condition` of the sparse model: every layer conditioned through its inducing
+    inputs, which take the training inputs' place in the :class:`Predictor`."""
+    L = sparse_layers(spec, data, params, jitter)
+    h = constrained(params)
+    ar = ar_of(params)
+    bottom = [_sparse_fit(b) for b in L["bottom"]]
+    vectors = _level_vectors(spec, data, params)
+    return Predictor(params["Du"], L["dynamics"].styles, _sparse_fit(L["dynamics"]), h["alpha"],
+                     jnp.zeros(spec.order) if ar is None else ar, params["Iu"],
+                     L["interaction"].styles, _sparse_fit(L["interaction"]), h["beta"],
+                     params["Xu"], tuple(f.Linv for f in bottom), tuple(f.A for f in bottom),
+                     h["gamma"], vectors)
+
+
 def _condition(spec, data, params, jitter, blocked=True) -> Predictor:
+    if spec.inducing is not None:
+        return _condition_sparse(spec, data, params, jitter)
     h = constrained(params)
     index = layers.DynamicsIndex(data.lengths, spec.order)
     S = trial_styles(params, data)
@@ -231,8 +318,7 @@ def _condition(spec, data, params, jitter, blocked=True) -> Predictor:
         f = _fit_layer(Kb, jnp.asarray(data.Y[a]), jitter)
         Ls.append(f.Linv)
         As.append(f.A)
-    vectors = {f: style_to_simplex(params[STYLE_PREFIX + f]) if STYLE_PREFIX + f in params
-               else jnp.eye(data.onehot[f].shape[1]) for f in spec.factors}
+    vectors = _level_vectors(spec, data, params)
     return Predictor(jnp.stack(lags), dyn_style, dyn, h["alpha"], ar, I, int_style, inter,
                      h["beta"], X, tuple(Ls), tuple(As), h["gamma"], vectors)
 

@@ -7,6 +7,7 @@ The model itself (layers, log-posterior of eq. 12) is in :mod:`bayesmotion.model
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field, replace
 
 from bayesmotion.codecs.affective import check_pose_space
@@ -63,6 +64,13 @@ class HGPDM:
             1 (default) is the plain model. :func:`bayesmotion.infer_emotion` scores new clips
             with the plain likelihood whatever the weight. Measured on the Bandai walks in
             ``benchmarks/results/synthesis.json`` (``mechanisms``).
+        inducing: None (default) for the exact model; a number M of inducing points for the
+            sparse model: every layer (bottom, interaction, dynamics) replaced by Titsias's
+            variational bound with M inducing inputs (at most the layer's rows), O(N M^2)
+            per evaluation instead of O(N^3) (:mod:`bayesmotion.gp.sparse`, docs/model.md).
+            The inducing inputs start at M evenly spaced training frames, whose style they
+            keep, and are fitted with the latents; with M >= N they start at every frame and
+            the bound equals the exact model.
         priors: prior settings.
     """
 
@@ -78,6 +86,7 @@ class HGPDM:
     pose_space: str = "angles"
     dynamics_linear: str = "stable"
     dynamics_weight: float = 1.0
+    inducing: int | None = None
     priors: Priors = field(default_factory=Priors)
 
     def __post_init__(self):
@@ -90,6 +99,12 @@ class HGPDM:
         if (isinstance(w, bool) or not isinstance(w, int | float)
                 or not (math.isfinite(w) and w > 0)):
             raise BayesmotionError(f"dynamics_weight must be a positive number, got {w!r}")
+        m = self.inducing
+        if m is not None:
+            if isinstance(m, bool) or not isinstance(m, numbers.Integral) or m < 2:
+                raise BayesmotionError(f"inducing must be None (the exact model) or a whole "
+                                       f"number >= 2 of inducing points, got {m!r}")
+            object.__setattr__(self, "inducing", int(m))
         if self.dynamics_linear not in DYNAMICS_LINEAR:
             raise BayesmotionError(f"dynamics_linear must be one of {DYNAMICS_LINEAR}, got "
                                    f"{self.dynamics_linear!r}")
@@ -128,7 +143,8 @@ class HGPDM:
         d = {k: getattr(self, k) for k in ("latent_dim", "interaction_dim", "order",
                                              "root_mode", "scaling", "rest_frames",
                                              "canonical_side", "pose_space",
-                                             "dynamics_linear", "dynamics_weight")}
+                                             "dynamics_linear", "dynamics_weight",
+                                             "inducing")}
         d["interaction_factors"] = list(self.interaction_factors or ())
         d["dynamics_factors"] = list(self.dynamics_factors or ())
         d["priors"] = self.priors.to_dict()
@@ -142,6 +158,7 @@ class HGPDM:
         d["dynamics_factors"] = tuple(d["dynamics_factors"])
         d.setdefault("dynamics_linear", "kernel")  # files written before the option existed
         d.setdefault("dynamics_weight", 1.0)
+        d.setdefault("inducing", None)
         return cls(**d)
 
     def fit(self, dataset: MotionDataset, **kwargs) -> FittedHGPDM:
