@@ -52,6 +52,7 @@ BENCHMARKS = [
     "handshake_inference",
     "posterior_convergence",
     "jax_versions",
+    "sparse_scaling",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 

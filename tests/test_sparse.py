@@ -170,11 +170,12 @@ def test_a_sparse_model_fits_saves_loads_and_generates(sparse_model, tmp_path):
     with np.load(path, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}
     meta = json.loads(arrays["__meta__"].tobytes().decode())
-    meta["spec"]["inducing"] = 30
-    arrays["__meta__"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
-    np.savez(tmp_path / "bad.npz", **arrays)
-    with pytest.raises(ModelFileError, match="Xu"):
-        bm.load(tmp_path / "bad.npz")
+    for value, match in [(30, "Xu"), (-1, "inducing"), ("20", "inducing")]:
+        meta["spec"]["inducing"] = value
+        arrays["__meta__"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+        np.savez(tmp_path / "bad.npz", **arrays)
+        with pytest.raises(ModelFileError, match=match):
+            bm.load(tmp_path / "bad.npz")
 
 
 @pytest.mark.slow

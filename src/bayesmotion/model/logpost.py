@@ -18,7 +18,9 @@ The joint negative log-posterior (eq. 12) is
              -sum_trials log N(I_first | 0, init_var) (restart prior, eq. 9)
              -log p(gamma, beta, alpha) - log p(S)    (priors, see bayesmotion.model.params)
 
-For one-actor data the interaction layer maps I to X_1 alone.
+For one-actor data the interaction layer maps I to X_1 alone. In the sparse model
+(``HGPDM(inducing=M)``) each layer's log N(.) is replaced by Titsias's bound with inducing
+inputs ``Xu``, ``Iu``, ``Du`` (:mod:`bayesmotion.gp.sparse`).
 """
 
 from __future__ import annotations
