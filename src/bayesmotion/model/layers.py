@@ -118,33 +118,52 @@ def _noise(kdiag, noise_var, jitter):
     return noise_var + jitter * (jnp.mean(kdiag) + noise_var)
 
 
-def sparse_gplvm_loglik(U, X, Y, gamma, jitter=0.0):
-    """Bottom layer, sparse: Titsias's bound of log p(Y | X, gamma) with inducing inputs U."""
+# Each sparse layer as the arguments of bayesmotion.gp.sparse (K_uu, K_uf, diag K_ff, outputs,
+# noise variance with the jitter): the log-likelihoods below and the conditioned predictor
+# (bayesmotion.model.predict) build them here, once.
+def sparse_bottom_terms(U, X, Y, gamma, jitter=0.0):
+    """Bottom layer with inducing inputs U (M, Q_X)."""
     kdiag = jnp.full(X.shape[0], gamma[0])
-    return sparse.sparse_loglik(kernels.bottom_kernel(U, U, gamma),
-                                kernels.bottom_kernel(U, X, gamma), kdiag, Y,
-                                _noise(kdiag, 1.0 / gamma[2], jitter))
+    return (kernels.bottom_kernel(U, U, gamma), kernels.bottom_kernel(U, X, gamma), kdiag, Y,
+            _noise(kdiag, 1.0 / gamma[2], jitter))
 
 
-def sparse_style_gplvm_loglik(U, S_u, I, Z, S, beta, jitter=0.0):
-    """Interaction layer, sparse: inducing inputs U (M, Q_I) with styles S_u (per factor)."""
+def sparse_interaction_terms(U, I, Z, S, rows, beta, jitter=0.0):
+    """Interaction layer with inducing inputs U (M, Q_I), whose styles are those of the
+    training frames ``rows`` (:class:`InducingPlan`); S per-frame styles (per factor)."""
+    S_u = [s[rows] for s in S]
     kdiag = beta[0] * kernels.style_gram_diag(S, I.shape[0])
-    return sparse.sparse_loglik(kernels.interaction_kernel(U, U, S_u, S_u, beta),
-                                kernels.interaction_kernel(U, I, S_u, S, beta), kdiag, Z,
-                                _noise(kdiag, 1.0 / beta[2], jitter))
+    return (kernels.interaction_kernel(U, U, S_u, S_u, beta),
+            kernels.interaction_kernel(U, I, S_u, S, beta), kdiag, Z,
+            _noise(kdiag, 1.0 / beta[2], jitter))
 
 
-def sparse_gpdm_loglik(U, S_u, I, S, alpha, index: DynamicsIndex, jitter=0.0, prior_var=1.0,
-                       ar=None):
-    """Dynamics layer, sparse: inducing lag inputs U (o, M, Q_I) with styles S_u; S per-frame
-    styles of the outputs (as :func:`gpdm_loglik`)."""
+def sparse_dynamics_terms(U, I, S, rows, alpha, index: DynamicsIndex, jitter=0.0, ar=None):
+    """Dynamics layer with inducing lag inputs U (o, M, Q_I), whose styles are those of the
+    output rows ``rows``; S per-frame styles (as :func:`gpdm_loglik`)."""
     lags, out = dynamics_targets(I, index, ar)
     S_out = [s[index.out] for s in S]
+    S_u = [s[rows] for s in S_out]
     kdiag = kernels.dynamics_diag(lags, S_out, alpha)
-    noise = _noise(kdiag, 1.0 / kernels.dynamics_noise_precision(alpha), jitter)
-    ll = sparse.sparse_loglik(kernels.dynamics_kernel(list(U), list(U), S_u, S_u, alpha),
-                              kernels.dynamics_kernel(list(U), lags, S_u, S_out, alpha),
-                              kdiag, out, noise)
+    return (kernels.dynamics_kernel(list(U), list(U), S_u, S_u, alpha),
+            kernels.dynamics_kernel(list(U), lags, S_u, S_out, alpha), kdiag, out,
+            _noise(kdiag, 1.0 / kernels.dynamics_noise_precision(alpha), jitter))
+
+
+def sparse_gplvm_loglik(U, X, Y, gamma, jitter=0.0):
+    """Bottom layer, sparse: Titsias's bound of log p(Y | X, gamma) with inducing inputs U."""
+    return sparse.sparse_loglik(*sparse_bottom_terms(U, X, Y, gamma, jitter))
+
+
+def sparse_style_gplvm_loglik(U, I, Z, S, rows, beta, jitter=0.0):
+    """Interaction layer, sparse (:func:`sparse_interaction_terms`)."""
+    return sparse.sparse_loglik(*sparse_interaction_terms(U, I, Z, S, rows, beta, jitter))
+
+
+def sparse_gpdm_loglik(U, I, S, rows, alpha, index: DynamicsIndex, jitter=0.0, prior_var=1.0,
+                       ar=None):
+    """Dynamics layer, sparse (:func:`sparse_dynamics_terms`), with the restart prior."""
+    ll = sparse.sparse_loglik(*sparse_dynamics_terms(U, I, S, rows, alpha, index, jitter, ar))
     return ll + restart_log_prior(I[index.first], prior_var)
 
 

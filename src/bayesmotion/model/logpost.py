@@ -148,9 +148,9 @@ class LogPosterior:
     def _interaction(self, params, I, Z, beta, jitter):
         fi = self.spec.interaction_factors
         if self.inducing is not None:
-            S = self.frame_styles(params, fi)
-            S_u = [s[self.inducing.frames] for s in S]
-            return layers.sparse_style_gplvm_loglik(params["Iu"], S_u, I, Z, S, beta, jitter)
+            return layers.sparse_style_gplvm_loglik(params["Iu"], I, Z,
+                                                    self.frame_styles(params, fi),
+                                                    self.inducing.frames, beta, jitter)
         if self.dense or self.int_blocks is None or not self._fixed(params, fi):
             return layers.style_gplvm_loglik(I, Z, self.frame_styles(params, fi), beta, jitter)
         return layers.blocked_style_gplvm_loglik(I, Z, beta, self.int_blocks, jitter)
@@ -159,10 +159,9 @@ class LogPosterior:
         fd, v0 = self.spec.dynamics_factors, self.spec.priors.init_var
         ar = ar_of(params)
         if self.inducing is not None:
-            S = self.frame_styles(params, fd)
-            S_u = [s[self.index.out][self.inducing.outs] for s in S]
-            return layers.sparse_gpdm_loglik(params["Du"], S_u, I, S, alpha, self.index,
-                                             jitter, v0, ar)
+            return layers.sparse_gpdm_loglik(params["Du"], I, self.frame_styles(params, fd),
+                                             self.inducing.outs, alpha, self.index, jitter,
+                                             v0, ar)
         if self.dense or self.dyn_blocks is None or not self._fixed(params, fd):
             return layers.gpdm_loglik(I, self.frame_styles(params, fd), alpha, self.index,
                                       jitter, v0, ar)

@@ -208,8 +208,10 @@ class SparseLayer(NamedTuple):
     styles: tuple
 
 
-def _sparse_layer(Kuu, Kuf, kdiag, outputs, noise_var, jitter, inputs, styles) -> SparseLayer:
-    noise = noise_var + jitter * (jnp.mean(kdiag) + noise_var)  # the dense path's jitter
+def _sparse_layer(terms, inputs, styles) -> SparseLayer:
+    """A SparseLayer from :mod:`bayesmotion.model.layers`' sparse terms (K_uu, K_uf, diag K_ff,
+    outputs, noise)."""
+    Kuu, Kuf, _, outputs, noise = terms
     return SparseLayer(sparse.sparse_parts(Kuu, Kuf, outputs, noise), outputs, inputs,
                        tuple(styles))
 
@@ -225,28 +227,18 @@ def sparse_layers(spec, data, params, jitter) -> dict:
     S = trial_styles(params, data)
     tof = data.trial_of_frame
     X, I = params["X"], params["I"]
-    lags, out = layers.dynamics_targets(I, index, ar_of(params))
-    S_out = [S[f][tof][index.out] for f in spec.dynamics_factors]
-    Su = [s[plan.outs] for s in S_out]
-    U, alpha = list(params["Du"]), h["alpha"]
-    dyn = _sparse_layer(kernels.dynamics_kernel(U, U, Su, Su, alpha),
-                        kernels.dynamics_kernel(U, lags, Su, S_out, alpha),
-                        kernels.dynamics_diag(lags, S_out, alpha), out,
-                        1.0 / kernels.dynamics_noise_precision(alpha), jitter, params["Du"], Su)
+    S_dyn = [S[f][tof] for f in spec.dynamics_factors]
+    dyn = _sparse_layer(layers.sparse_dynamics_terms(params["Du"], I, S_dyn, plan.outs,
+                                                     h["alpha"], index, jitter, ar_of(params)),
+                        params["Du"], [s[index.out][plan.outs] for s in S_dyn])
     S_int = [S[f][tof] for f in spec.interaction_factors]
-    Su = [s[plan.frames] for s in S_int]
-    Iu, beta = params["Iu"], h["beta"]
-    inter = _sparse_layer(kernels.interaction_kernel(Iu, Iu, Su, Su, beta),
-                          kernels.interaction_kernel(Iu, I, Su, S_int, beta),
-                          beta[0] * kernels.style_gram_diag(S_int, I.shape[0]),
-                          jnp.concatenate(list(X), axis=1), 1.0 / beta[2], jitter, Iu, Su)
-    bottom, gamma = [], h["gamma"]
-    for a in range(X.shape[0]):
-        Xu = params["Xu"][a]
-        bottom.append(_sparse_layer(
-            kernels.bottom_kernel(Xu, Xu, gamma), kernels.bottom_kernel(Xu, X[a], gamma),
-            jnp.full(X.shape[1], gamma[0]), jnp.asarray(data.Y[a]), 1.0 / gamma[2], jitter,
-            Xu, ()))
+    inter = _sparse_layer(layers.sparse_interaction_terms(
+        params["Iu"], I, jnp.concatenate(list(X), axis=1), S_int, plan.frames, h["beta"],
+        jitter), params["Iu"], [s[plan.frames] for s in S_int])
+    bottom = [_sparse_layer(layers.sparse_bottom_terms(params["Xu"][a], X[a],
+                                                       jnp.asarray(data.Y[a]), h["gamma"],
+                                                       jitter), params["Xu"][a], ())
+              for a in range(X.shape[0])]
     return {"dynamics": dyn, "interaction": inter, "bottom": bottom}
 
 
