@@ -46,12 +46,13 @@ INDUCING_JITTER = 1e-8
 class SparseParts(NamedTuple):
     """The M x M quantities of one sparse layer at one parameter value.
 
-    Lu: (M, M) Cholesky factor of K_uu (+ jitter). A: (M, N) L_u^-1 K_uf / s.
-    LB: (M, M) Cholesky factor of B = I + A A^T. AY: (M, D) A Y / s. noise: s2.
+    Lu_inv: (M, M) inverse of K_uu's Cholesky factor (K_uu + jitter). A: (M, N) L_u^-1 K_uf / s.
+    B: (M, M) I + A A^T, LB its Cholesky factor. AY: (M, D) A Y / s. noise: s2.
     """
 
-    Lu: jnp.ndarray
+    Lu_inv: jnp.ndarray
     A: jnp.ndarray
+    B: jnp.ndarray
     LB: jnp.ndarray
     AY: jnp.ndarray
     noise: jnp.ndarray
@@ -68,8 +69,8 @@ def sparse_parts(Kuu, Kuf, Y, noise_var, jitter_u=INDUCING_JITTER) -> SparsePart
     # N = 12,642, M = 256, D = 70 on the 2-core target)
     Lu_inv = solve_triangular(Lu, jnp.eye(M, dtype=Lu.dtype), lower=True)
     A = (Lu_inv @ Kuf) / s
-    LB = jnp.linalg.cholesky(jnp.eye(M, dtype=A.dtype) + A @ A.T)
-    return SparseParts(Lu, A, LB, (A @ Y) / s, noise_var)
+    B = jnp.eye(M, dtype=A.dtype) + A @ A.T
+    return SparseParts(Lu_inv, A, B, jnp.linalg.cholesky(B), (A @ Y) / s, noise_var)
 
 
 def sparse_loglik(Kuu, Kuf, kff_diag, Y, noise_var, jitter_u=INDUCING_JITTER,
@@ -85,16 +86,15 @@ def sparse_loglik(Kuu, Kuf, kff_diag, Y, noise_var, jitter_u=INDUCING_JITTER,
            - 0.5 * (jnp.sum(Y**2) / noise_var - jnp.sum(c**2)))
     if trace_term:
         val = val - 0.5 * D / noise_var * (jnp.sum(kff_diag) - noise_var * jnp.sum(p.A**2))
-    ok = jnp.all(jnp.isfinite(p.Lu)) & jnp.all(jnp.isfinite(p.LB)) & jnp.isfinite(val)
+    ok = jnp.all(jnp.isfinite(p.Lu_inv)) & jnp.all(jnp.isfinite(p.LB)) & jnp.isfinite(val)
     return jnp.where(ok, val, -jnp.inf)
 
 
 def predictive_weights(p: SparseParts) -> tuple[jnp.ndarray, jnp.ndarray]:
     """(W, R): mean(x) = k(U, x)^T W and var(x) = k(x, x) - |R k(U, x)|^2 (module docstring).
     W (M, D); R (M, M), not triangular."""
-    lam, V = jnp.linalg.eigh(p.LB @ p.LB.T)
-    M = lam.shape[0]
-    Lu_inv = solve_triangular(p.Lu, jnp.eye(M, dtype=p.Lu.dtype), lower=True)
+    lam, V = jnp.linalg.eigh(p.B)
+    Lu_inv = p.Lu_inv
     W = Lu_inv.T @ (V @ ((V.T @ p.AY) / lam[:, None]))  # AY holds the 1 / s
     R = jnp.sqrt(jnp.clip(1.0 - 1.0 / lam, 0.0, 1.0))[:, None] * (V.T @ Lu_inv)
     return W, R
