@@ -120,15 +120,20 @@ def test_demo_quick_writes_every_file(tmp_path):
 
 
 def test_sample_output_is_tidy(tmp_path, tiny_model):
-    """Labelled progress bars; the package's warning as one line; no dependency's deprecation
-    notice (arviz announces its refactor with a FutureWarning when imported)."""
+    """Labelled progress bars; the run's pace and time left as one line; the package's warning
+    as one line; no dependency's deprecation notice (arviz announces its refactor with a
+    FutureWarning when imported)."""
     model = tmp_path / "m.npz"
     tiny_model.save(model)
     r = run("sample", str(model), "--steps", "30", "--out", str(tmp_path / "p.nc"))
     assert r.returncode == 0, r.stderr[-2000:]
     assert "emcee, sampling (" in r.stderr
+    said = [x for x in r.stderr.replace("\r", "\n").splitlines() if x.startswith("emcee: ")]
+    assert len(said) == 1 and re.fullmatch(
+        r"emcee: \S+ s per step over \d+ steps; the \d+ steps left take about \d+ s", said[0])
+    assert re.search(r"30 steps in \d+ s$", r.stdout.strip())
     lines = [x for x in r.stderr.replace("\r", "\n").splitlines()
-             if x.strip() and not x.startswith(("emcee, ", "MAP fit"))]  # the bars
+             if x.strip() and not x.startswith(("emcee, ", "emcee: ", "MAP fit"))]  # the bars
     assert lines == [x for x in lines if x.startswith("warning: ")]  # nothing else on stderr
     assert any("shorter than 50 autocorrelation times" in x for x in lines)
     assert "FutureWarning" not in r.stderr and "ArviZ" not in r.stderr

@@ -94,6 +94,55 @@ def test_short_chain_warns_with_emcee_rule():
                    init="ball", ball=1e-2, moves=None)
 
 
+class SlowTarget(GaussianTarget):
+    """A Gaussian target whose every batch evaluation takes ``delay`` seconds."""
+
+    def __init__(self, mu, sd, delay):
+        super().__init__(mu, sd)
+        fast = self.logp_batch
+
+        def slow(xs):
+            time.sleep(delay)
+            return fast(xs)
+
+        self.logp_batch = slow
+
+
+def test_run_says_its_pace_and_the_time_left(capsys):
+    # DE evaluates the ensemble in two halves: 2 calls of 0.05 s per step
+    n_steps = 30
+    with pytest.warns(ChainTooShortWarning) as caught:
+        post = run_emcee(SlowTarget([0.0, 0.0], [1.0, 1.0], 0.05), np.zeros(2), n_walkers=8,
+                          n_steps=n_steps, burn=5, thin=1, seed=0, backend=None, progress=True,
+                          init="ball", ball=1e-2, moves=None)
+    pace = post.info["pace"]
+    assert 0.09 < pace["seconds_per_step"] < 0.2
+    # timed: step 2 to step 21 (20 steps, the first untimed); 9 steps left then
+    assert pace["timed_steps"] == 20
+    assert pace["estimated_seconds_left"] == pytest.approx(9 * pace["seconds_per_step"])
+    # the whole run's time is what the first steps said, within the timing's noise
+    estimate = 21 * pace["seconds_per_step"] + pace["estimated_seconds_left"]
+    assert abs(post.info["seconds"] - estimate) < 0.3 * post.info["seconds"]
+    err = capsys.readouterr().err
+    assert "s per step over 20 steps; the 9 steps left take about" in err
+    # the too-short warning says what to run instead, and how long that takes at this pace
+    need = int(np.ceil(50 * post.info["tau"].max() / 100) * 100)
+    message = str(caught[0].message)
+    assert f"run n_steps >= {need} (CLI: --steps {need}), about" in message
+    assert "at this run's pace" in message
+
+
+def test_quiet_run_keeps_its_pace_without_saying_it(capsys):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        post = run_emcee(GaussianTarget([0.0], [1.0]), np.zeros(1), n_walkers=4, n_steps=5,
+                          burn=1, thin=1, seed=0, backend=None, progress=False, init="ball",
+                          ball=1e-2, moves=None)
+    assert post.info["pace"]["timed_steps"] == 4  # the run ended before 20 steps
+    assert post.info["pace"]["estimated_seconds_left"] == 0
+    assert "per step" not in capsys.readouterr().err
+
+
 def test_idata_has_named_dims_and_round_trips_netcdf(tiny_model, tmp_path):
     import arviz as az
 

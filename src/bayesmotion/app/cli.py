@@ -48,6 +48,7 @@ from bayesmotion.emotion.ood import OutOfDistributionWarning
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.evaluation.evaluate import format_confusion, leave_one_out
 from bayesmotion.inference.diagnostics import convergence
+from bayesmotion.inference.posterior import format_seconds
 from bayesmotion.inference.sample import sample_posterior
 from bayesmotion.model.io import load
 from bayesmotion.model.spec import HGPDM
@@ -290,7 +291,8 @@ def _cmd_sample(a):
     post.to_netcdf(a.out)
     c = convergence(post)
     print(f"wrote {a.out}: max R-hat {c['max_rhat']:.3f}, min bulk ESS {c['min_ess_bulk']:.0f}, "
-          f"acceptance {c['mean_acceptance']:.2f}")
+          f"acceptance {c['mean_acceptance']:.2f}; {post.info['n_steps']} steps in "
+          f"{format_seconds(post.info['seconds'])}")
 
 
 def _cmd_generate(a):

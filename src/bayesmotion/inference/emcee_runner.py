@@ -4,6 +4,7 @@ move) or two ensembles over its factors; resumable from an HDF5 chain file."""
 from __future__ import annotations
 
 import os
+import sys
 import time
 
 import numpy as np
@@ -16,7 +17,7 @@ from bayesmotion.inference.chainfile import (
     h5_errors,
     open_h5,
 )
-from bayesmotion.inference.posterior import posterior_from_chain
+from bayesmotion.inference.posterior import format_seconds, posterior_from_chain
 from bayesmotion.inference.proposals import (
     adapt_steps,
     default_moves,
@@ -62,6 +63,45 @@ def _initial_state(start, seed):
 
     # seeded: emcee keeps its generator state in the State (and the backend)
     return emcee.State(start, random_state=np.random.RandomState(seed).get_state())
+
+
+class Pace:
+    """The run's pace, measured on its first steps, and the whole run's time estimated from it.
+
+    The first step of a call is not timed (it compiles the vectorised density); the pace is the
+    mean over the next steps until ``after_seconds`` have passed or ``after_steps`` steps are
+    timed, whichever comes first. The estimate (``info``) is said once, on stderr, when
+    ``say`` is set (the progress bars are on), and kept in ``Posterior.info["pace"]`` beside
+    the run's measured ``seconds``.
+    """
+
+    def __init__(self, n_steps: int, say: bool, after_seconds: float = 10.0,
+                 after_steps: int = 20):
+        self.left, self.say = n_steps, say
+        self.after_seconds, self.after_steps = after_seconds, after_steps
+        self.t0, self.timed, self.info = None, 0, None
+
+    def step(self) -> None:
+        """Called after each step."""
+        self.left -= 1
+        if self.info is not None:
+            return
+        now = time.perf_counter()
+        if self.t0 is None:
+            self.t0 = now
+            return
+        self.timed += 1
+        spent = now - self.t0
+        if spent >= self.after_seconds or self.timed >= self.after_steps or self.left == 0:
+            per = spent / self.timed
+            self.info = {"seconds_per_step": per, "timed_steps": self.timed,
+                         "estimated_seconds_left": per * self.left}
+            if self.say and self.left:
+                from tqdm.auto import tqdm
+
+                tqdm.write(f"emcee: {per:.3g} s per step over {self.timed} steps; the "
+                           f"{self.left} steps left take about "
+                           f"{format_seconds(per * self.left)}", file=sys.stderr)
 
 
 PHASE_LABELS = {True: "emcee, adapting ({W} walkers)", False: "emcee, sampling ({W} walkers)",
@@ -112,6 +152,7 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         def phase_moves(_):
             return default_moves(target, hmc) if moves is None else moves
 
+    pace = Pace(max(0, n_steps - done), progress)
     t0 = time.perf_counter()
     ran = []  # (moves, steps) of each phase run by this call
     for end, which in phases:
@@ -121,16 +162,19 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         ran.append((used, end - done))
         sampler = emcee.EnsembleSampler(W, target.ndim, log_prob, vectorize=True, backend=be,
                                         moves=used)
-        label = {"progress_kwargs": {"desc": PHASE_LABELS[which].format(W=W)}}
+        label = {"desc": PHASE_LABELS[which].format(W=W)}
         if done:
-            sampler.run_mcmc(None, end - done, progress=progress, **label)
+            state = sampler._previous_state
         else:
             start = start_points(target, centre, W, init, ball, np.random.default_rng(seed),
                                   cov)
-            sampler.run_mcmc(_initial_state(start, seed), end, progress=progress, **label)
+            state = _initial_state(start, seed)
+        for _ in sampler.sample(state, iterations=end - done, progress=progress,
+                                progress_kwargs=label):
+            pace.step()
         done = end
     seconds = time.perf_counter() - t0
-    info = {"seconds": seconds, "factorised": False, **phase_stats(ran)}
+    info = {"seconds": seconds, "pace": pace.info, "factorised": False, **phase_stats(ran)}
     if independence:
         info["adapt_steps"] = n_adapt
         info["modes"] = [{"weight": m["weight"], "logp": m["logp"],
@@ -219,6 +263,7 @@ def run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend
         start = start_points(target, centre, W, init, ball, np.random.default_rng(seed))
     init_up = s_up._previous_state if done_up else _initial_state(start[:, iu], seed)
     init_bot = s_bot._previous_state if done_bot else _initial_state(start[:, ib], seed + 1)
+    pace = Pace(max(0, n_steps - done_up), progress)
     t0 = time.perf_counter()
     gen_up = s_up.sample(init_up, iterations=max(0, n_steps - done_up), progress=progress,
                          progress_kwargs={"desc": f"emcee, factorised ({W} walkers)"})
@@ -228,6 +273,7 @@ def run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend
         while done_bot < min(n_bot, t // gamma_every + 1):
             next(gen_bot)
             done_bot += 1
+        pace.step()
     for _ in gen_bot:  # the bottom steps still missing when the upper chain was complete
         pass
     for _ in gen_up:  # close the generators (each saves a step before it yields it)
@@ -238,7 +284,7 @@ def run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend
     held = np.arange(n_steps) // gamma_every
     chain = np.empty((n_steps, W, target.ndim))
     chain[..., iu], chain[..., ib] = c_up, c_bot[held]
-    info = {"seconds": seconds, "factorised": True, "gamma_every": gamma_every,
+    info = {"seconds": seconds, "pace": pace.info, "factorised": True, "gamma_every": gamma_every,
             "bottom_acceptance": np.asarray(s_bot.acceptance_fraction), **move_stats(moves_up)}
     return posterior_from_chain(target, chain, l_up + l_bot[held], s_up.acceptance_fraction,
                                 burn, thin, info)

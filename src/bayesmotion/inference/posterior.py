@@ -149,7 +149,8 @@ def posterior_from_chain(target, chain, lp, acceptance, burn, thin, info, min_bu
     # coordinate's tau is then NaN, and burn_thin reports the chain as too short
     with np.errstate(invalid="ignore", divide="ignore"):
         tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
-    bt = burn_thin(tau, chain.shape[0], burn, thin, min_burn)
+    bt = burn_thin(tau, chain.shape[0], burn, thin, min_burn,
+                   (info.get("pace") or {}).get("seconds_per_step"))
     sel = slice(bt["burn"], None, bt["thin"])
     return Posterior(target.model, target, np.swapaxes(chain[sel], 0, 1),
                      np.swapaxes(lp[sel], 0, 1), np.asarray(acceptance), "emcee",
@@ -157,12 +158,39 @@ def posterior_from_chain(target, chain, lp, acceptance, burn, thin, info, min_bu
                       **info})
 
 
-def burn_thin(tau, n_steps, burn, thin, min_burn: int = 0):
+def _run_instead(tmax: float, seconds_per_step: float | None) -> str:
+    """What to run instead of a too-short chain: 50 x max tau steps (rounded up to 100), with
+    their time at this run's pace."""
+    if not np.isfinite(tmax):
+        return ("some coordinate's walkers never moved (tau undefined): run longer, or start "
+                "them wider (init='laplace')")
+    need = int(-(-50 * tmax // 100) * 100)
+    what = f"run n_steps >= {need} (CLI: --steps {need})"
+    if seconds_per_step:
+        what += f", about {format_seconds(need * seconds_per_step)} at this run's pace"
+    return what + "; a backend file resumes a run without redoing its steps"
+
+
+def format_seconds(s: float) -> str:
+    """A duration as people read it: 42 s, 7.5 min, 3.2 h."""
+    if s < 90:
+        return f"{s:.0f} s"
+    if s < 5400:
+        return f"{s / 60:.1f} min"
+    return f"{s / 3600:.1f} h"
+
+
+def burn_thin(tau, n_steps, burn, thin, min_burn: int = 0,
+              seconds_per_step: float | None = None):
+    """Burn-in and thinning from the autocorrelation times; a ``ChainTooShortWarning`` (and
+    ``info["warning"]``) when the chain is shorter than 50 of them, saying how many steps to
+    run instead and, given the run's ``seconds_per_step``, about how long they take."""
     info = {}
     tmax = float(np.nanmax(tau)) if np.all(np.isfinite(tau)) else float("inf")
     if n_steps < 50 * tmax:
         msg = (f"chain of {n_steps} steps is shorter than 50 autocorrelation times "
-               f"(max tau ~ {tmax:.0f}): the estimates are unreliable; run longer")
+               f"(max tau ~ {tmax:.0f}): the estimates are unreliable; "
+               f"{_run_instead(tmax, seconds_per_step)}")
         warn(msg, ChainTooShortWarning)
         info["warning"] = msg
     if burn is None:
