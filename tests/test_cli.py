@@ -129,8 +129,8 @@ def test_sample_output_is_tidy(tmp_path, tiny_model):
     assert r.returncode == 0, r.stderr[-2000:]
     assert "emcee, sampling (" in r.stderr
     said = [x for x in r.stderr.replace("\r", "\n").splitlines() if x.startswith("emcee: ")]
-    assert len(said) == 1 and re.fullmatch(
-        r"emcee: \S+ s per step over \d+ steps; the \d+ steps left take about \S+ (s|min|h)", said[0])
+    assert len(said) == 1 and re.fullmatch(r"emcee: \S+ s per step over \d+ steps; the \d+ "
+                                           r"steps left take about \S+ (s|min|h)", said[0])
     assert re.search(r"30 steps in \S+ (s|min|h)$", r.stdout.strip())
     lines = [x for x in r.stderr.replace("\r", "\n").splitlines()
              if x.strip() and not x.startswith(("emcee, ", "emcee: ", "MAP fit"))]  # the bars
