@@ -92,7 +92,7 @@ def test_infer_many_answers_as_infer_emotion_and_resumes(tiny_model, clips, clie
     on_disk = read_table(table)
     assert sorted(r["clip"] for r in on_disk) == ["broken", "t0", "t1", "t2"]
     # the model travelled once and each worker loaded it once
-    loaded = client.run(lambda: len(__import__("bayesmotion.emotion.batch",
+    loaded = client.run(lambda: len(__import__("bayesmotion.model.distributed",
                                                fromlist=["_MODELS"])._MODELS))
     assert sorted(loaded.values()) == [1, 1]
 

@@ -2,8 +2,9 @@
 
 Each clip is one :func:`~bayesmotion.emotion.infer.infer_emotion` call, run as a task on a
 ``dask.distributed`` cluster: a ``LocalCluster`` of ``workers`` processes (one thread each) by
-default (one XLA and one OpenBLAS thread per worker process, :func:`worker_env`), or any
-cluster given by its scheduler's address or a ``Client``. The model travels to
+default (one XLA and one OpenBLAS thread per worker process,
+:func:`~bayesmotion.model.distributed.worker_env`), or any cluster given by its scheduler's
+address or a ``Client``. The model travels to
 each worker once, as the bytes of its model file (the checked, pickle-free format of
 :mod:`bayesmotion.model.archive`), and each worker loads it once; a task then carries only its
 clip's file paths, which every worker must be able to read (a shared file system on a
@@ -27,12 +28,10 @@ Dask is an optional dependency: ``pip install "bayesmotion[distributed]"``.
 from __future__ import annotations
 
 import csv
-import hashlib
 import io
 import os
 import re
 import socket
-import tempfile
 import time
 import uuid
 import warnings
@@ -42,12 +41,12 @@ from pathlib import Path
 import numpy as np
 
 from bayesmotion.errors import BayesmotionError
+from bayesmotion.model.distributed import check_workers, dask_client, model_bytes, worker_model
 
 FIXED = ("clip", "files", "label", "label_set_90")
 TAIL = ("out_of_distribution", "ood_score", "in_distribution_weight", "n_frames", "seconds",
         "finished", "worker", "error")
 _ACTOR_FILE = re.compile(r"(?P<clip>.+)_actor(?P<actor>\d+)$")
-_MODELS: dict[str, object] = {}  # per worker process: model file digest -> loaded model
 
 
 def columns(levels: Sequence[str]) -> list[str]:
@@ -110,40 +109,6 @@ def _named(clips, n_actors: int) -> dict[str, tuple[str, ...]]:
     return out
 
 
-def worker_env() -> dict[str, str]:
-    """Environment of the local cluster's worker processes: one thread each for XLA's CPU pool
-    (``PJRT_NPROC``) and OpenBLAS, as the cluster runs one process per core; a value the caller
-    set in this process's environment is kept."""
-    return {k: os.environ.get(k, "1") for k in ("PJRT_NPROC", "OPENBLAS_NUM_THREADS")}
-
-
-def _model_bytes(model) -> bytes:
-    if isinstance(model, str | os.PathLike):
-        from bayesmotion.model.io import load
-
-        data = Path(model).read_bytes()
-        # checked (errors name the user's file) and kept: _worker_model finds it by digest
-        _MODELS[hashlib.sha256(data).hexdigest()] = load(model)
-        return data
-    with tempfile.TemporaryDirectory() as d:
-        path = Path(d) / "model.npz"
-        model.save(path)
-        return path.read_bytes()
-
-
-def _worker_model(data: bytes):
-    """The model of these file bytes, loaded once per worker process."""
-    key = hashlib.sha256(data).hexdigest()
-    if key not in _MODELS:
-        from bayesmotion.model.io import load
-
-        with tempfile.TemporaryDirectory() as d:
-            path = Path(d) / "model.npz"
-            path.write_bytes(data)
-            _MODELS[key] = load(path)
-    return _MODELS[key]
-
-
 def infer_row(model, name: str, paths: Sequence[str], kwargs: dict) -> dict:
     """One clip's row of the table (an ``error`` row instead of raising)."""
     from bayesmotion.emotion.infer import infer_emotion
@@ -173,7 +138,7 @@ def infer_row(model, name: str, paths: Sequence[str], kwargs: dict) -> dict:
 
 
 def _task(data: bytes, name: str, paths: tuple[str, ...], kwargs: dict) -> dict:
-    return infer_row(_worker_model(data), name, paths, kwargs)
+    return infer_row(worker_model(data), name, paths, kwargs)
 
 
 class Table:
@@ -243,17 +208,16 @@ def infer_many(model, clips, out=None, *, client=None, workers: int = 2,
         ``out`` from an earlier run are returned as read (:func:`parse_row`).
     """
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import as_completed
     except ImportError:
         raise BayesmotionError('infer_many runs on Dask: pip install "bayesmotion[distributed]"'
                                ) from None
     from tqdm.auto import tqdm
 
-    data = _model_bytes(model)
-    fitted = _worker_model(data)
+    data = model_bytes(model)
+    fitted = worker_model(data)
     named = _named(clips, fitted.n_actors)
-    if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
-        raise BayesmotionError(f"workers must be an integer >= 1, got {workers!r}")
+    check_workers(workers)
     cols = columns(list(fitted.levels["emotion"]))
     table = Table(out, cols) if out is not None else None
     done = ({c: parse_row(r) for c, r in table.finished().items()} if table is not None
@@ -261,15 +225,7 @@ def infer_many(model, clips, out=None, *, client=None, workers: int = 2,
     todo = {c: p for c, p in named.items() if c not in done}
     rows = dict(done)
     if todo:
-        own = None
-        if client is None:
-            if scheduler is not None:
-                client = own = Client(scheduler)
-            else:
-                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                       dashboard_address=None, env=worker_env())
-                client = own = Client(cluster)
-        try:
+        with dask_client(client, scheduler, workers, "infer_many") as client:
             shared = client.scatter(data, broadcast=True, hash=False)
             run = uuid.uuid4().hex[:8]
             futures = {client.submit(_task, shared, c, p, infer_kwargs, pure=False,
@@ -290,12 +246,6 @@ def infer_many(model, clips, out=None, *, client=None, workers: int = 2,
                     table.append(row)
                 bar.update()
             bar.close()
-        finally:
-            if own is not None:
-                cluster = getattr(own, "cluster", None)
-                own.close()
-                if cluster is not None and scheduler is None:
-                    cluster.close()
     return [rows[c] for c in named]
 
 

@@ -123,11 +123,13 @@ class Posterior:
         return self._predictors[i]
 
     def generate(self, emotion="neutral", couple=None, n_frames=100, n_samples=0, start=None,
-                 seed=0, n_draws: int = 16, **styles):
+                 seed=0, n_draws: int = 16, client=None, workers: int | None = None,
+                 **styles):
         """Posterior-predictive generation; see
-        :func:`bayesmotion.inference.predictive.generate_posterior`."""
+        :func:`bayesmotion.inference.predictive.generate_posterior` (``client`` or
+        ``workers``: the draws' rollouts as tasks on a Dask cluster)."""
         return generate_posterior(self, emotion, couple, n_frames, n_samples, start, seed,
-                                  n_draws, **styles)
+                                  n_draws, client, workers, **styles)
 
 
 def _constrain(p: dict) -> dict:
