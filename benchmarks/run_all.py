@@ -51,6 +51,7 @@ BENCHMARKS = [
     "batch_inference",
     "handshake_inference",
     "posterior_convergence",
+    "demo_posterior",
     "jax_versions",
     "sparse_scaling",
 ]

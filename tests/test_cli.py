@@ -99,6 +99,10 @@ def test_demo_quick_writes_every_file(tmp_path):
     for key in ("fit", "posterior", "generation", "interpolation", "inference"):
         assert key in s
     assert {"max_rhat", "min_ess_bulk", "mean_acceptance"} <= set(s["posterior"])
+    # the quick posterior (hyperparameters, styles held at the MAP) converges in its budget
+    assert s["posterior"]["style_vectors"] == "held at the MAP"
+    assert s["posterior"]["max_rhat"] <= 1.05 and s["posterior"]["min_ess_bulk"] >= 400
+    assert "style vectors held at the MAP" in (out / "report.html").read_text()
     assert 0 <= s["inference"]["accuracy"] <= 1
     assert 0 <= s["inference"]["hpd90_covers_truth"] <= 1
     assert 0 <= s["interpolation"]["hpd90_coverage"] <= 1
@@ -154,9 +158,11 @@ def test_sample_passes_its_sampler_flags(tmp_path, tiny_model, monkeypatch):
     monkeypatch.setattr(cli, "sample_posterior", fake)
     model = tmp_path / "m.npz"
     tiny_model.save(model)
-    for flags, want in (([], (False, False, None)), (["--hmc"], (True, False, None)),
-                        (["--factorise"], (False, True, None)),
-                        (["--no-independence"], (False, False, False))):
+    for flags, want in (([], (False, False, None, False)), (["--hmc"], (True, False, None, False)),
+                        (["--factorise"], (False, True, None, False)),
+                        (["--no-independence"], (False, False, False, False)),
+                        (["--fix-styles"], (False, False, None, True))):
         seen.clear()
         assert main(["sample", str(model), "--out", str(tmp_path / "p.nc"), *flags]) != 0
-        assert (seen["hmc"], seen["factorise"], seen["independence"]) == want
+        assert (seen["hmc"], seen["factorise"], seen["independence"],
+                seen["fix_styles"]) == want

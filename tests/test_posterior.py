@@ -457,3 +457,49 @@ def test_a_file_resumes_only_with_the_independence_choice_it_was_written_with(ti
         post = bm.sample_posterior(tiny_model, n_steps=40, backend=tmp_path / "a.h5",
                                    progress=False, burn=3, thin=1)
     assert post.info["adapt_steps"] == 3 and post.info["n_steps"] == 40
+
+
+def test_hyper_block_holds_the_models_style_vectors(tiny_model):
+    """p(gamma, beta, alpha, a | S, X, I): at the MAP's hyperparameters it is the MAP's own
+    log-posterior (styles one-hot, as the MAP kept them); with learned style vectors it differs
+    from the joint density at the same styles by a constant (their prior and Jacobian)."""
+    from bayesmotion.inference.target import Target
+    from bayesmotion.model.params import simplex_to_style
+
+    hyper, joint = Target(tiny_model, block="hyper"), Target(tiny_model)
+    assert hyper.names == [n for n in joint.names if not n.startswith("style:")]
+    assert not any(k.startswith("style:") for k in hyper.full(hyper.x0))
+    lp = tiny_model.log_posterior_fn
+    np.testing.assert_allclose(float(hyper.logp(jnp.asarray(hyper.x0))),
+                               float(lp({k: jnp.asarray(v) for k, v in tiny_model.params.items()},
+                                        hyper.jitter)), rtol=1e-12)
+    # a model with learned (inside-the-simplex) emotion vectors
+    S = np.array([[0.8, 0.2], [0.3, 0.7]])
+    m = tiny_model.with_params({**tiny_model.params,
+                                "style:emotion": np.asarray(simplex_to_style(S))})
+    hyper, joint = Target(m, block="hyper"), Target(m)
+    ih = [joint.names.index(n) for n in hyper.names]
+    x = np.tile(joint.x0, (5, 1))
+    x[:, ih] += 0.3 * np.random.default_rng(1).standard_normal((5, len(ih)))
+    h = np.asarray(hyper.logp_batch(jnp.asarray(x[:, ih])))
+    j = np.asarray(joint.logp_batch(jnp.asarray(x)))
+    assert np.ptp(h) > 1.0  # the points differ
+    np.testing.assert_allclose(j - h, (j - h)[0], rtol=0, atol=1e-7)
+    full = hyper.full(x[0, ih])
+    np.testing.assert_allclose(full["style:emotion"], m.params["style:emotion"])
+
+
+def test_fix_styles_samples_the_hyperparameters_alone(tiny_model):
+    from bayesmotion.inference.target import Target
+
+    post = bm.sample_posterior(tiny_model, n_steps=300, fix_styles=True, progress=False,
+                               seed=2)
+    c = convergence(post)
+    assert post.target.ndim == len([n for n in Target(tiny_model).names
+                                    if not n.startswith("style:")])
+    assert c["max_rhat"] < 1.05 and c["min_ess_bulk"] > 400  # nearly independent draws
+    assert not any(v.startswith("style_") for v in post.idata.posterior.data_vars)
+    r = post.generate(emotion="sad", n_frames=10, n_draws=3)
+    assert np.all(np.isfinite(r.positions)) and r.variance_parts["I"]["between"].sum() > 0
+    with pytest.raises(bm.BayesmotionError, match="fix_styles"):
+        bm.sample_posterior(tiny_model, n_steps=300, fix_styles=True, factorise=True)

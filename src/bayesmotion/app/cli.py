@@ -127,6 +127,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="leave out the independence step on the hyperparameters "
                         "(sample_posterior(independence=False)); the factorised sampler "
                         "never uses it")
+    s.add_argument("--fix-styles", action="store_true",
+                   help="hold the training style vectors at the model's and sample the "
+                        "hyperparameters alone (sample_posterior(fix_styles=True)): a "
+                        "conditional of the posterior, which converges in a few hundred steps")
     g = add("generate", "generate motion from a model")
     g.add_argument("model")
     g.add_argument("--emotion", default="neutral", help="a label or coordinates, e.g. 0.5,0.5,0,0")
@@ -287,7 +291,7 @@ def _cmd_sample(a):
     post = sample_posterior(m, n_walkers=a.walkers, n_steps=a.steps, backend=a.backend,
                             factorise=a.factorise, hmc=a.hmc,
                             independence=False if a.no_independence else None,
-                            check_memory=not a.no_memory_check)
+                            fix_styles=a.fix_styles, check_memory=not a.no_memory_check)
     post.to_netcdf(a.out)
     c = convergence(post)
     print(f"wrote {a.out}: max R-hat {c['max_rhat']:.3f}, min bulk ESS {c['min_ess_bulk']:.0f}, "

@@ -21,7 +21,11 @@ SAMPLED_HYPER = ("log_gamma", "log_beta", "log_alpha", AR_KEY)  # those the mode
 BOTTOM_KEYS = ("log_gamma",)
 
 
-BLOCKS = {"bottom": ("bottom",), "upper": ("interaction", "dynamics")}
+BLOCKS = {"bottom": ("bottom",), "upper": ("interaction", "dynamics"), "hyper": LAYERS}
+"""block -> the layers its density needs. "bottom": gamma, p(gamma | Y, X); "upper": the rest,
+p(beta, alpha, S | X, I); "hyper": the hyperparameters (gamma, beta, alpha, the AR
+coefficients) with the style vectors held at the model's (one-hot where the MAP kept them so),
+p(gamma, beta, alpha, a | S, X, I)."""
 
 
 def sampled_start(model) -> dict:
@@ -53,16 +57,22 @@ class Target:
         self.model = model
         self.jitter = model.diagnostics.get("jitter", 1e-8) if jitter is None else jitter
         start = sampled_start(model)
+        # the latents (and a sparse model's inducing inputs) stay at the MAP
+        self.fixed = {k: jnp.asarray(model.params[k]) for k in LATENT_KEYS if k in model.params}
+        self.block = block
         if block is not None:
             if block not in BLOCKS:
                 raise BayesmotionError(f"block must be one of {sorted(BLOCKS)}, got {block!r}")
-            start = {k: v for k, v in start.items()
-                     if (k in BOTTOM_KEYS) == (block == "bottom")}
+            if block == "hyper":  # the model's own style vectors (one-hot where it has none)
+                self.fixed.update({k: jnp.asarray(v) for k, v in model.params.items()
+                                   if k.startswith(STYLE_PREFIX)})
+                start = {k: v for k, v in start.items() if not k.startswith(STYLE_PREFIX)}
+            else:
+                start = {k: v for k, v in start.items()
+                         if (k in BOTTOM_KEYS) == (block == "bottom")}
         which = LAYERS if block is None else BLOCKS[block]
         x0, self.unravel = ravel_pytree({k: jnp.asarray(v) for k, v in start.items()})
         self.x0 = np.asarray(x0)
-        # the latents (and a sparse model's inducing inputs) stay at the MAP
-        self.fixed = {k: jnp.asarray(model.params[k]) for k in LATENT_KEYS if k in model.params}
         self.names = _flat_names(start)
         lp = model.log_posterior_fn
         jitter = self.jitter

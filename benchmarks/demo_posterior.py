@@ -1,0 +1,78 @@
+"""The quick demo's posterior: the hyperparameters with the style vectors held at the MAP
+(``sample_posterior(fix_styles=True)``, what ``bayesmotion demo --quick`` samples) side by side
+with the whole posterior (style vectors sampled too), same model, same steps, same run.
+
+The model is the quick demo's: ``load_handshakes(seed=0, fps=10)`` without its 4 held-out
+trials (20 trials, N = 340 frames per actor), ``HGPDM().fit(max_iter=150, seed=0)``. Each
+posterior is sampled with ``sample_posterior``'s defaults (DE, style rotations where styles are
+sampled, the independence step) for the demo's 200 steps (quick: 100), seed 0; R-hat and ESS
+are ``bayesmotion.inference.diagnostics.convergence`` of the chain after the package's burn-in.
+Target (issue: the posterior in minutes): the quick demo reports max R-hat <= 1.05 and min bulk
+ESS >= 400.
+
+Current result (``results/demo_posterior.json``): see ``["headline"]`` and
+``docs/results.md``.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+
+STEPS = {"quick": 100, "full": 200}
+TARGET_RHAT, TARGET_ESS = 1.05, 400
+
+
+def run(quick: bool) -> dict:
+    from _common import headline
+
+    from bayesmotion import HGPDM, load_handshakes
+    from bayesmotion.app.demo import SETTINGS, _split
+    from bayesmotion.inference.diagnostics import convergence
+    from bayesmotion.inference.sample import sample_posterior
+
+    cfg = SETTINGS["quick"]
+    steps = STEPS["quick" if quick else "full"]
+    train, _ = _split(load_handshakes(seed=0, fps=cfg["fps"]))
+    t0 = time.perf_counter()
+    model = HGPDM().fit(train, max_iter=cfg["max_iter"], seed=0, progress=False)
+    fit_s = time.perf_counter() - t0
+    rows = {}
+    for name, fix in (("styles_held_at_map", True), ("whole_posterior", False)):
+        t0 = time.perf_counter()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            post = sample_posterior(model, n_steps=steps, seed=0, fix_styles=fix,
+                                    progress=False)
+        c = convergence(post)
+        rows[name] = {"fix_styles": fix, "ndim": post.target.ndim,
+                      "n_walkers": post.info["n_walkers"], "n_steps": steps,
+                      "seconds": time.perf_counter() - t0,
+                      "seconds_per_step": post.info["pace"]["seconds_per_step"],
+                      "burn": post.info["burn"], "max_tau": float(np.max(post.info["tau"])),
+                      "max_rhat": c["max_rhat"], "min_ess_bulk": c["min_ess_bulk"],
+                      "min_ess_tail": c["min_ess_tail"],
+                      "chain_too_short_warning": any("autocorrelation" in str(w.message)
+                                                     for w in caught)}
+    held, whole = rows["styles_held_at_map"], rows["whole_posterior"]
+    met = held["max_rhat"] <= TARGET_RHAT and held["min_ess_bulk"] >= TARGET_ESS
+    out = {"settings": {"model": f"quick demo: load_handshakes(seed=0, fps={cfg['fps']}), 20 "
+                                 f"training trials, HGPDM().fit(max_iter={cfg['max_iter']}, "
+                                 f"seed=0)", "n_steps": steps, "seed": 0,
+                        "targets": {"max_rhat": TARGET_RHAT, "min_ess_bulk": TARGET_ESS}},
+           "fit_seconds": fit_s, "samplers": rows}
+    out["headline"] = [
+        headline(f"quick demo posterior, styles held at the MAP ({held['ndim']} dims): max "
+                 f"R-hat after {steps} steps", held["max_rhat"], "", f"<= {TARGET_RHAT}", met,
+                 f"min bulk ESS {held['min_ess_bulk']:.0f} (target >= {TARGET_ESS}), tail "
+                 f"{held['min_ess_tail']:.0f}; max tau {held['max_tau']:.1f} steps; "
+                 f"{held['seconds']:.0f} s"),
+        headline(f"  whole posterior ({whole['ndim']} dims), same model and steps",
+                 whole["max_rhat"], "", f"<= {TARGET_RHAT}",
+                 whole["max_rhat"] <= TARGET_RHAT and whole["min_ess_bulk"] >= TARGET_ESS,
+                 f"min bulk ESS {whole['min_ess_bulk']:.0f}; max tau {whole['max_tau']:.0f} "
+                 f"steps; {whole['seconds']:.0f} s"),
+    ]
+    return out
