@@ -66,3 +66,16 @@ def tiny_model():
 
     return HGPDM(latent_dim=3, interaction_dim=3).fit(make_tiny_dataset(), max_iter=60,
                                                       progress=False)
+
+
+@pytest.fixture(scope="module")
+def client():
+    """A Dask client of a LocalCluster of 2 worker processes (one thread each), per module."""
+    distributed = pytest.importorskip("dask.distributed",
+                                      reason="dask.distributed not installed")
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                       dashboard_address=None)
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()

@@ -23,16 +23,6 @@ def post(tiny_model):
         return bm.sample_posterior(tiny_model, n_steps=60, progress=False)
 
 
-@pytest.fixture(scope="module")
-def client():
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                       dashboard_address=None)
-    c = distributed.Client(cluster)
-    yield c
-    c.close()
-    cluster.close()
-
-
 def _same(a, b):
     for s in SPACES:
         for f in (s, f"{s}_var"):

@@ -32,16 +32,6 @@ def clips(tmp_path_factory):
     return folder
 
 
-@pytest.fixture(scope="module")
-def client():
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                       dashboard_address=None)
-    c = distributed.Client(cluster)
-    yield c
-    c.close()
-    cluster.close()
-
-
 def test_find_clips_groups_actor_files(tmp_path):
     for name in ("a_actor0", "a_actor1", "b_actor0", "b_actor1"):
         (tmp_path / f"{name}.bvh").write_text("")
