@@ -89,3 +89,41 @@ XLA_POOL_DEFAULTED = apply_xla_pool_policy(os.environ, jaxlib_version())
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+
+
+# --------------------------------------------------------------------------- compiled programs
+#: the share of the kernel's limit on a process's memory mappings at which
+#: :func:`release_compiled_programs` drops JAX's compiled programs
+MAPS_FRACTION = 0.5
+
+
+def memory_maps() -> tuple[int, int] | None:
+    """(memory mappings of this process, the kernel's limit ``vm.max_map_count``), or None
+    where the system does not say (not Linux)."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            used = sum(1 for _ in f)
+        with open("/proc/sys/vm/max_map_count") as f:
+            limit = int(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    return used, limit
+
+
+def release_compiled_programs(fraction: float = MAPS_FRACTION, maps=memory_maps) -> bool:
+    """Drop JAX's caches of compiled programs (``jax.clear_caches()``) when this process's
+    memory mappings exceed ``fraction`` of the kernel's limit; True when it did.
+
+    XLA's CPU backend maps memory for every compiled program. A long loop that compiles anew
+    for each new shape (leave-one-out folds of other sizes, clips of many lengths) grows the
+    count until mapping fails at the limit (65,530 by default): LLVM then reports "Cannot
+    allocate memory" with gigabytes free, and the process crashes. Called between such units
+    of work, this keeps the count bounded at the cost of compiling again what is used next.
+    """
+    now = maps()
+    if now is None or now[0] <= fraction * now[1]:
+        return False
+    import jax
+
+    jax.clear_caches()
+    return True

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bayesmotion._config import release_compiled_programs
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.distributed import check_workers, dask_client, model_bytes, worker_model
 
@@ -117,6 +118,7 @@ def infer_row(model, name: str, paths: Sequence[str], kwargs: dict) -> dict:
     levels = list(model.levels["emotion"])
     row = dict.fromkeys(columns(levels), "")
     row.update(clip=name, files=";".join(paths), worker=f"{socket.gethostname()}:{os.getpid()}")
+    release_compiled_programs()  # clips of many lengths compile anew: keep the maps bounded
     t = time.perf_counter()
     try:
         with warnings.catch_warnings():  # the flag is in the row

@@ -17,6 +17,7 @@ import warnings
 
 import numpy as np
 
+from bayesmotion._config import release_compiled_programs
 from bayesmotion.baselines.classifier import (
     LogisticRegression,
     NearestNeighbour,
@@ -255,6 +256,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
     levels = list(dataset.levels["emotion"])
     rows, runs = [], []
     for i, (train, held) in enumerate(dataset.leave_one_out()):
+        release_compiled_programs()  # folds of other sizes compile anew: keep the maps bounded
         keep = [r for r in range(len(dataset)) if r != i]
         fold = spec.fit(train, max_iter=refit_iter, progress=False, seed=seed,
                         init=_fold_init(full_model, keep), **fit_kwargs)
