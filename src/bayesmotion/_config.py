@@ -42,6 +42,12 @@ raises the count for its own calling thread (``openblas_set_num_threads_local``)
 pool is blocked on it, and only while other processes leave the cores idle. To keep every
 BLAS call on one thread (e.g. when running several bayesmotion processes side by side), set
 ``OPENBLAS_NUM_THREADS=1`` yourself.
+
+Compiled programs: XLA's CPU backend maps memory for every program it compiles, and a loop that
+compiles for each new shape can reach the kernel's limit on a process's mappings
+(``vm.max_map_count``), where LLVM fails with "Cannot allocate memory" however much memory is
+free. :func:`release_compiled_programs` drops JAX's compiled programs past half that limit;
+``leave_one_out`` calls it before each fold and ``infer_many``'s workers before each clip.
 """
 
 import os
