@@ -1,5 +1,8 @@
 """bayesmotion command line.
 
+One concept: the command line, one subcommand per use of the library, each a thin layer that
+checks its arguments and calls the library's function.
+
 Commands:
   demo      the main job on the built-in emotional handshakes (fit, posterior, generation,
             inference, report)
