@@ -14,7 +14,7 @@ import pytest
 import bayesmotion as bm
 from bayesmotion.inference.diagnostics import compare_posteriors, convergence
 from bayesmotion.inference.emcee_runner import run_emcee
-from bayesmotion.inference.posterior import ChainTooShortWarning
+from bayesmotion.inference.posterior import ChainTooShortWarning, steps_for_rhat
 
 
 class GaussianTarget:
@@ -130,6 +130,33 @@ def test_run_says_its_pace_and_the_time_left(capsys):
     message = str(caught[0].message)
     assert f"run n_steps >= {need} (CLI: --steps {need}), about" in message
     assert "at this run's pace" in message
+    rhat_steps = steps_for_rhat(post.info["tau"].max())
+    assert f"expected to reach 1.01 near {rhat_steps} steps, about" in message
+
+
+@pytest.mark.parametrize("rho, kept", [(0.8, 600), (0.9, 2000), (0.96, 5000)])
+def test_rhat_over_walkers_falls_as_tau_over_steps_kept(rho, kept):
+    # 54 independent AR(1) walkers of known tau = (1 + rho) / (1 - rho): split R-hat (the
+    # package's convergence()) is 1 + (tau - 1) / kept, the rule steps_for_rhat inverts
+    rng = np.random.default_rng(1)
+    tau = (1 + rho) / (1 - rho)
+    x = np.empty((54, kept, 4))
+    x[:, 0] = rng.standard_normal((54, 4))
+    e = rng.standard_normal((54, kept, 4)) * np.sqrt(1 - rho ** 2)
+    for t in range(1, kept):
+        x[:, t] = rho * x[:, t - 1] + e[:, t]
+
+    class Chains:
+        chains = x
+        acceptance = np.ones(54)
+
+    predicted = (tau - 1) / kept
+    got = convergence(Chains())["max_rhat"] - 1
+    # the max over 4 coordinates of an estimate whose sd is ~15% of R-hat - 1 (108 half-chains)
+    assert 0.7 * predicted < got < 1.6 * predicted
+    # inverted: 2 tau of burn-in, then 100 (tau - 1) kept steps, rounded up to 100
+    assert steps_for_rhat(tau) == int(np.ceil((2 * tau + 100 * (tau - 1)) / 100) * 100)
+    assert steps_for_rhat(1.0) == 100
 
 
 def test_quiet_run_keeps_its_pace_without_saying_it(capsys):

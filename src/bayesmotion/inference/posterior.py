@@ -160,17 +160,35 @@ def posterior_from_chain(target, chain, lp, acceptance, burn, thin, info, min_bu
                       **info})
 
 
+def steps_for_rhat(tau: float, rhat: float = 1.01) -> int:
+    """Steps (rounded up to 100) after which the split R-hat over the walkers is expected to
+    fall to ``rhat`` for a coordinate of integrated autocorrelation time ``tau``.
+
+    With L steps kept after the burn-in (2 tau), each walker's mean has variance about tau / L
+    of the coordinate's, so split R-hat ~ 1 + (tau - 1) / L (checked against AR(1) chains of
+    known tau in ``tests/test_posterior.py``): R-hat <= 1.01 needs about 100 tau kept steps,
+    twice emcee's 50 tau rule for trusting tau itself."""
+    need = 2 * tau + max(tau - 1.0, 0.0) / (rhat - 1.0)
+    return int(-(-need // 100) * 100)
+
+
 def _run_instead(tmax: float, seconds_per_step: float | None) -> str:
-    """What to run instead of a too-short chain: 50 x max tau steps (rounded up to 100), with
-    their time at this run's pace."""
+    """What to run instead of a too-short chain: 50 x max tau steps (rounded up to 100), and
+    the steps after which max R-hat over the walkers is expected to reach 1.01
+    (:func:`steps_for_rhat`), with their times at this run's pace."""
     if not np.isfinite(tmax):
         return ("some coordinate's walkers never moved (tau undefined): run longer, or start "
                 "them wider (init='laplace')")
     need = int(-(-50 * tmax // 100) * 100)
-    what = f"run n_steps >= {need} (CLI: --steps {need})"
-    if seconds_per_step:
-        what += f", about {format_seconds(need * seconds_per_step)} at this run's pace"
-    return what + "; a backend file resumes a run without redoing its steps"
+    rhat = steps_for_rhat(tmax)
+
+    def at_pace(n: int) -> str:
+        return f", about {format_seconds(n * seconds_per_step)}" if seconds_per_step else ""
+
+    pace = " at this run's pace" if seconds_per_step else ""
+    return (f"run n_steps >= {need} (CLI: --steps {need}){at_pace(need)}{pace}; max R-hat over "
+            f"the walkers is expected to reach 1.01 near {rhat} steps{at_pace(rhat)} (R-hat ~ "
+            f"1 + tau / steps kept); a backend file resumes a run without redoing its steps")
 
 
 def format_seconds(s: float) -> str:
