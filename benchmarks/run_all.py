@@ -50,6 +50,7 @@ BENCHMARKS = [
     "infer_speed",
     "batch_inference",
     "handshake_inference",
+    "calibration_consistency",
     "posterior_convergence",
     "demo_posterior",
     "jax_versions",

@@ -1,10 +1,13 @@
-"""Label-probability calibration metrics: ECE, reliability bins, label sets, confident errors."""
+"""Label-probability calibration metrics: ECE, reliability bins, label sets, confident errors,
+and what a calibrated posterior would score on the same clips."""
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.evaluation.calibration import (
+    calibration_consistency,
     expected_calibration_error,
     label_calibration,
     reliability,
@@ -72,3 +75,58 @@ def test_label_sets_brier_and_log_score():
 def test_bad_input_is_named(p, t, match):
     with pytest.raises(BayesmotionError, match=match):
         label_calibration(p, t)
+
+
+def test_a_calibrated_ece_on_one_bin_is_the_binomial_deviation():
+    # 16 clips, all at confidence 0.9 (one bin): a calibrated posterior gets X ~ Bin(16, 0.9)
+    # right, so its ECE is |X / 16 - 0.9| and the bin's accuracy is X / 16
+    p = np.tile([0.9, 0.1], (16, 1))
+    truth = np.zeros(16, int)
+    truth[:2] = 1  # 14 of 16 right: accuracy 0.875
+    c = calibration_consistency(p, truth, n_draws=20000, level=0.9, seed=3)
+    x = np.arange(17)
+    dev, w = np.abs(x / 16 - 0.9), stats.binom.pmf(x, 16, 0.9)
+    order = np.argsort(dev)
+    cdf = np.cumsum(w[order])
+    median = dev[order][np.searchsorted(cdf, 0.5)]
+    assert c["ece"] == pytest.approx(0.025)
+    assert c["ece_if_calibrated"]["median"] == pytest.approx(median)
+    assert c["p_value"] == pytest.approx(np.sum(w[dev >= 0.025 - 1e-12]), abs=0.01)
+    lo, hi = stats.binom.ppf([0.05, 0.95], 16, 0.9) / 16
+    assert c["bins"][0]["accuracy_interval"] == pytest.approx([lo, hi])
+    assert c["bins"][0]["count"] == 16 and c["bins"][0]["accuracy"] == 0.875
+
+
+def test_calibrated_answers_are_rarely_rejected_and_overconfident_ones_are():
+    rng = np.random.default_rng(0)
+    pvals = []
+    for _ in range(200):  # data calibrated by construction: p-values about uniform
+        p = rng.dirichlet(np.ones(4) * 0.5, 16)
+        truth = np.array([rng.choice(4, p=row) for row in p])
+        pvals.append(calibration_consistency(p, truth, n_draws=400, seed=1)["p_value"])
+    # a discrete statistic: at most its nominal rate, within 3 binomial sd of 200 data sets
+    assert np.mean(np.array(pvals) < 0.1) < 0.1 + 3 * np.sqrt(0.09 / 200)
+    assert 0.3 < np.median(pvals) < 0.7
+    # every answer given with P = 0.99 at accuracy 0.8 (40 clips)
+    p = np.tile([0.99, 0.01 / 3, 0.01 / 3, 0.01 / 3], (40, 1))
+    truth = np.r_[np.zeros(32, int), np.ones(8, int)]
+    bad = calibration_consistency(p, truth, seed=2)
+    assert bad["p_value"] < 0.01
+    assert bad["ece"] > bad["ece_if_calibrated"]["interval"][1]
+    assert bad["bins"][0]["accuracy"] < bad["bins"][0]["accuracy_interval"][0]
+
+
+def test_label_calibration_reports_the_calibrated_ece_beside_the_observed():
+    cal = label_calibration(P4, T4)
+    c = calibration_consistency(P4, T4)
+    assert cal["ece_if_calibrated"] == c["ece_if_calibrated"]
+    assert cal["ece_p_value"] == c["p_value"]
+    # four clips at confidence 0.55-0.9: a calibrated posterior's ECE is far from 0 there
+    assert c["ece_if_calibrated"]["median"] > 0.15
+
+
+@pytest.mark.parametrize("kw, match", [({"n_draws": 0}, "n_draws"), ({"n_draws": 2.5}, "n_draws"),
+                                       ({"level": 1.0}, "level")])
+def test_consistency_names_bad_settings(kw, match):
+    with pytest.raises(BayesmotionError, match=match):
+        calibration_consistency(P4, T4, **kw)

@@ -1,5 +1,6 @@
 """Calibration of emotion posteriors: the likelihood power (tempering) that makes credible
-regions cover at their nominal rate, estimated from leave-one-out folds."""
+regions cover at their nominal rate, estimated from leave-one-out folds; the label
+probabilities' reliability, ECE, and what a calibrated posterior would score on the same clips."""
 
 from __future__ import annotations
 
@@ -210,12 +211,18 @@ def reliability(probabilities, truth, n_bins: int = 10) -> list[dict]:
     conf = p.max(1)
     right = np.argmax(p, 1) == t
     edges = np.linspace(0.0, 1.0, int(n_bins) + 1)
-    # the top bin is closed: a confidence of exactly 1 falls in it
-    idx = np.minimum(np.searchsorted(edges, conf, side="right") - 1, int(n_bins) - 1)
+    idx = _bin_index(conf, n_bins)
     return [{"lower": float(edges[b]), "upper": float(edges[b + 1]),
              "count": int(np.sum(idx == b)), "confidence": float(conf[idx == b].mean()),
              "accuracy": float(right[idx == b].mean())}
             for b in range(int(n_bins)) if np.any(idx == b)]
+
+
+def _bin_index(conf, n_bins: int) -> np.ndarray:
+    """The equal-width bin of each confidence on [0, 1]; the top bin is closed, so a
+    confidence of exactly 1 falls in it."""
+    edges = np.linspace(0.0, 1.0, int(n_bins) + 1)
+    return np.minimum(np.searchsorted(edges, conf, side="right") - 1, int(n_bins) - 1)
 
 
 def expected_calibration_error(probabilities, truth, n_bins: int = 10) -> float:
@@ -227,6 +234,68 @@ def expected_calibration_error(probabilities, truth, n_bins: int = 10) -> float:
     return float(sum(b["count"] / n * abs(b["accuracy"] - b["confidence"]) for b in bins))
 
 
+def calibration_consistency(probabilities, truth, n_bins: int = 10, n_draws: int = 2000,
+                            level: float = 0.9, seed: int = 0) -> dict:
+    """What a calibrated posterior would show on these clips: consistency resampling (Broecker
+    and Smith 2007), conditional on the answers given.
+
+    A posterior is calibrated when its top label is right with the probability it states. With
+    the answers held, each of ``n_draws`` replicates draws every clip's outcome as right with
+    its top probability, then computes the ECE and each reliability bin's accuracy. On few clips
+    a calibrated posterior's ECE is far from 0 (the bins hold a handful of clips each), so the
+    observed ECE is read against that distribution, not against 0.
+
+    Args:
+        probabilities: (n, K) label probabilities. truth: (n,) true level indices.
+        n_bins: the reliability bins (:func:`reliability`).
+        n_draws: replicates.
+        level: the central probability of the intervals.
+        seed: seeds the replicates.
+
+    Returns:
+        ``ece`` (observed); ``ece_if_calibrated``: the replicates' ``median`` and central
+        ``interval``; ``p_value``: the fraction of replicates whose ECE is at least the observed
+        (small: the answers are miscalibrated beyond what n clips explain); ``bins``: per
+        non-empty bin ``lower``, ``upper``, ``count``, ``confidence``, ``accuracy`` and the
+        replicates' central ``accuracy_interval`` (the bin's consistency bar); ``n_draws``,
+        ``level``.
+    """
+    p, t = _label_args(probabilities, truth)
+    if int(n_draws) != n_draws or n_draws < 1:
+        raise BayesmotionError(f"n_draws must be a positive integer, got {n_draws!r}")
+    if not 0 < level < 1:
+        raise BayesmotionError(f"level must lie in (0, 1), got {level}")
+    bins = reliability(p, t, n_bins)
+    conf = p.max(1)
+    idx = _bin_index(conf, n_bins)
+    rng = np.random.default_rng(seed)
+    # each replicate's right answers per bin, drawn in chunks of about a million clips
+    kept = [int(round(b["lower"] * n_bins)) for b in bins]
+    chunk = max(1, 1_000_000 // conf.size)
+    hits = np.concatenate([_bin_hits(rng.random((min(chunk, int(n_draws) - s), conf.size)) < conf,
+                                     idx, kept) for s in range(0, int(n_draws), chunk)])
+    lo, hi = (1 - level) / 2, (1 + level) / 2
+    ece = np.zeros(int(n_draws))
+    out_bins = []
+    for j, b in enumerate(bins):
+        acc = hits[:, j] / b["count"]
+        ece += b["count"] / conf.size * np.abs(acc - b["confidence"])
+        out_bins.append({**b, "accuracy_interval": [float(np.quantile(acc, lo)),
+                                                     float(np.quantile(acc, hi))]})
+    observed = expected_calibration_error(p, t, n_bins)
+    return {"ece": observed,
+            "ece_if_calibrated": {"median": float(np.median(ece)),
+                                  "interval": [float(np.quantile(ece, lo)),
+                                               float(np.quantile(ece, hi))]},
+            "p_value": float(np.mean(ece >= observed - 1e-12)), "bins": out_bins,
+            "n_draws": int(n_draws), "level": float(level)}
+
+
+def _bin_hits(right, idx, kept) -> np.ndarray:
+    """(draws, clips) right answers -> (draws, bins) their count in each bin of ``kept``."""
+    return np.stack([right[:, idx == k].sum(1) for k in kept], 1)
+
+
 def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
                       confident: float = 0.99) -> dict:
     """What users read off label probabilities, for n labelled clips.
@@ -235,7 +304,10 @@ def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
     ``label_set_coverage`` (the truth inside the smallest set of levels holding probability
     ``q``) and the sets' mean size; ``confident_wrong`` (the fraction of clips answered wrongly
     with probability >= ``confident``); ``log_score`` (mean log probability of the truth) and
-    ``brier`` (mean squared error of the probability vector against the one-hot truth)."""
+    ``brier`` (mean squared error of the probability vector against the one-hot truth);
+    ``ece_if_calibrated`` and ``ece_p_value``: the ECE a calibrated posterior would show with
+    these answers on these clips, and how often it reaches the observed one
+    (:func:`calibration_consistency`, 2,000 replicates, seed 0)."""
     p, t = _label_args(probabilities, truth)
     if not 0 < q < 1:
         raise BayesmotionError(f"q must lie in (0, 1), got {q}")
@@ -245,6 +317,7 @@ def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
     inside = np.array([t[i] in order[i, :size[i]] for i in range(n)])
     right = np.argmax(p, 1) == t
     onehot = np.eye(K)[t]
+    consistency = calibration_consistency(p, t, n_bins)
     return {"n": n, "accuracy": float(right.mean()),
             "ece": expected_calibration_error(p, t, n_bins),
             "reliability": reliability(p, t, n_bins),
@@ -254,7 +327,9 @@ def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
             "confident_wrong": float(np.mean(~right & (p.max(1) >= confident))),
             "confident_threshold": confident,
             "log_score": float(np.mean(np.log(np.maximum(p[np.arange(n), t], 1e-300)))),
-            "brier": float(np.mean(np.sum((p - onehot) ** 2, 1)))}
+            "brier": float(np.mean(np.sum((p - onehot) ** 2, 1))),
+            "ece_if_calibrated": consistency["ece_if_calibrated"],
+            "ece_p_value": consistency["p_value"]}
 
 
 def _label_args(probabilities, truth) -> tuple[np.ndarray, np.ndarray]:
