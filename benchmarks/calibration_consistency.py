@@ -63,11 +63,11 @@ def run(quick: bool) -> dict:
             c = calibration_consistency(p, truth, n_draws=N_DRAWS, seed=0)
             rows[label] = {"n": int(len(p)), "accuracy": float(np.mean(p.argmax(1) == truth)),
                            **c}
-            med, (lo, hi) = c["ece_if_calibrated"]["median"], c["ece_if_calibrated"]["interval"]
+            mean, (lo, hi) = c["ece_if_calibrated"]["mean"], c["ece_if_calibrated"]["interval"]
             out["headline"].append(headline(
                 f"ECE, {what}, {label.replace('_', ' ')}", c["ece"], "", "<= 0.05",
                 c["ece"] <= 0.05,
-                f"a calibrated posterior with these answers: median {med:.3f}, 90% "
+                f"a calibrated posterior with these answers: mean {mean:.3f}, 90% "
                 f"[{lo:.3f}, {hi:.3f}]; p = {c['p_value']:.2f} (n = {len(p)})"))
         out["sources"][name] = rows
     return out

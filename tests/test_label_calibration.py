@@ -86,11 +86,9 @@ def test_a_calibrated_ece_on_one_bin_is_the_binomial_deviation():
     c = calibration_consistency(p, truth, n_draws=20000, level=0.9, seed=3)
     x = np.arange(17)
     dev, w = np.abs(x / 16 - 0.9), stats.binom.pmf(x, 16, 0.9)
-    order = np.argsort(dev)
-    cdf = np.cumsum(w[order])
-    median = dev[order][np.searchsorted(cdf, 0.5)]
     assert c["ece"] == pytest.approx(0.025)
-    assert c["ece_if_calibrated"]["median"] == pytest.approx(median)
+    # the mean's Monte-Carlo sd with 20,000 replicates is ~0.0003
+    assert c["ece_if_calibrated"]["mean"] == pytest.approx(np.sum(w * dev), abs=0.0015)
     assert c["p_value"] == pytest.approx(np.sum(w[dev >= 0.025 - 1e-12]), abs=0.01)
     lo, hi = stats.binom.ppf([0.05, 0.95], 16, 0.9) / 16
     assert c["bins"][0]["accuracy_interval"] == pytest.approx([lo, hi])
@@ -122,7 +120,7 @@ def test_label_calibration_reports_the_calibrated_ece_beside_the_observed():
     assert cal["ece_if_calibrated"] == c["ece_if_calibrated"]
     assert cal["ece_p_value"] == c["p_value"]
     # four clips at confidence 0.55-0.9: a calibrated posterior's ECE is far from 0 there
-    assert c["ece_if_calibrated"]["median"] > 0.15
+    assert c["ece_if_calibrated"]["mean"] > 0.15
 
 
 @pytest.mark.parametrize("kw, match", [({"n_draws": 0}, "n_draws"), ({"n_draws": 2.5}, "n_draws"),

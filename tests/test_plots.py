@@ -209,3 +209,25 @@ def test_spread_samples_hide_what_their_actor_hides_and_take_its_colour():
     assert cols == ["blue", "red"] * 3
     for k, t in enumerate(extra):  # track k is sample k // 2 of actor k % 2
         np.testing.assert_array_equal(t.source, S[k // 2, k % 2])
+
+
+def test_plot_reliability_draws_each_bin_inside_its_consistency_bar(tmp_path):
+    from bayesmotion.evaluation.calibration import calibration_consistency
+    from bayesmotion.viz.calibration import plot_reliability
+
+    rng = np.random.default_rng(0)
+    p = rng.dirichlet(np.ones(4) * 0.5, 40)
+    truth = np.array([rng.choice(4, p=row) for row in p])
+    ax = plot_reliability(p, truth, tmp_path / "rel.png", n_draws=500)
+    c = calibration_consistency(p, truth, n_draws=500)
+    bars = ax.collections[0].get_segments()  # one vertical bar per non-empty bin
+    assert len(bars) == len(c["bins"])
+    for seg, b in zip(bars, c["bins"], strict=True):
+        assert seg[:, 0] == pytest.approx([b["confidence"]] * 2)
+        assert seg[:, 1] == pytest.approx(b["accuracy_interval"])
+    points = ax.collections[1].get_offsets()
+    assert np.asarray(points)[:, 1] == pytest.approx([b["accuracy"] for b in c["bins"]])
+    assert f"ECE {c['ece']:.3f}" in ax.get_title()
+    assert imread(tmp_path / "rel.png").shape[-1] in (3, 4)
+    with pytest.raises(BayesmotionError, match="probabilities"):
+        plot_reliability(np.ones((3, 1)), np.zeros(3, int))

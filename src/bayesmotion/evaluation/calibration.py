@@ -253,8 +253,10 @@ def calibration_consistency(probabilities, truth, n_bins: int = 10, n_draws: int
         seed: seeds the replicates.
 
     Returns:
-        ``ece`` (observed); ``ece_if_calibrated``: the replicates' ``median`` and central
-        ``interval``; ``p_value``: the fraction of replicates whose ECE is at least the observed
+        ``ece`` (observed); ``ece_if_calibrated``: the replicates' ``mean`` and central
+        ``interval`` (the mean, not the median: the ECE of a few clips takes few values, and
+        its median jumps between them with the replicates); ``p_value``: the fraction of
+        replicates whose ECE is at least the observed
         (small: the answers are miscalibrated beyond what n clips explain); ``bins``: per
         non-empty bin ``lower``, ``upper``, ``count``, ``confidence``, ``accuracy`` and the
         replicates' central ``accuracy_interval`` (the bin's consistency bar); ``n_draws``,
@@ -284,7 +286,7 @@ def calibration_consistency(probabilities, truth, n_bins: int = 10, n_draws: int
                                                      float(np.quantile(acc, hi))]})
     observed = expected_calibration_error(p, t, n_bins)
     return {"ece": observed,
-            "ece_if_calibrated": {"median": float(np.median(ece)),
+            "ece_if_calibrated": {"mean": float(np.mean(ece)),
                                   "interval": [float(np.quantile(ece, lo)),
                                                float(np.quantile(ece, hi))]},
             "p_value": float(np.mean(ece >= observed - 1e-12)), "bins": out_bins,
@@ -306,7 +308,8 @@ def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
     with probability >= ``confident``); ``log_score`` (mean log probability of the truth) and
     ``brier`` (mean squared error of the probability vector against the one-hot truth);
     ``ece_if_calibrated`` and ``ece_p_value``: the ECE a calibrated posterior would show with
-    these answers on these clips, and how often it reaches the observed one
+    these answers on these clips (mean and 90% interval), and how often it reaches the observed
+    one
     (:func:`calibration_consistency`, 2,000 replicates, seed 0)."""
     p, t = _label_args(probabilities, truth)
     if not 0 < q < 1:
