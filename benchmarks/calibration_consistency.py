@@ -33,7 +33,8 @@ N_DRAWS = 20000
 
 def _answers(result: dict, key: str | None):
     levels = result["levels"]
-    rows = [t for t in result["trials"] if (key is None or key in t) and "probabilities" in t]
+    rows = [t for t in result["trials"]
+            if (t if key is None else t.get(key) or {}).get("probabilities") is not None]
     p = np.array([t["probabilities"] if key is None else t[key]["probabilities"] for t in rows])
     truth = np.array([levels.index(t["true"]) for t in rows])
     return p / p.sum(1, keepdims=True), truth
@@ -68,6 +69,6 @@ def run(quick: bool) -> dict:
                 f"ECE, {what}, {label.replace('_', ' ')}", c["ece"], "", "<= 0.05",
                 c["ece"] <= 0.05,
                 f"a calibrated posterior with these answers: mean {mean:.3f}, 90% "
-                f"[{lo:.3f}, {hi:.3f}]; p = {c['p_value']:.2f} (n = {len(p)})"))
+                f"[{lo:.3f}, {hi:.3f}]; p = {c['p_value']:.2g} (n = {len(p)})"))
         out["sources"][name] = rows
     return out

@@ -90,6 +90,7 @@ def test_a_calibrated_ece_on_one_bin_is_the_binomial_deviation():
     # the mean's Monte-Carlo sd with 20,000 replicates is ~0.0003
     assert c["ece_if_calibrated"]["mean"] == pytest.approx(np.sum(w * dev), abs=0.0015)
     assert c["p_value"] == pytest.approx(np.sum(w[dev >= 0.025 - 1e-12]), abs=0.01)
+    assert c["p_value"] > 0  # (1 + count) / (1 + draws): never 0
     lo, hi = stats.binom.ppf([0.05, 0.95], 16, 0.9) / 16
     assert c["bins"][0]["accuracy_interval"] == pytest.approx([lo, hi])
     assert c["bins"][0]["count"] == 16 and c["bins"][0]["accuracy"] == 0.875
@@ -128,3 +129,25 @@ def test_label_calibration_reports_the_calibrated_ece_beside_the_observed():
 def test_consistency_names_bad_settings(kw, match):
     with pytest.raises(BayesmotionError, match=match):
         calibration_consistency(P4, T4, **kw)
+
+
+def test_each_bin_gets_its_own_binomial_bar():
+    # 10 clips at 0.95 and 6 at 0.65 (two bins): each bar is its own binomial's 5-95% range
+    p = np.r_[np.tile([0.95, 0.05], (10, 1)), np.tile([0.65, 0.35], (6, 1))]
+    truth = np.zeros(16, int)
+    c = calibration_consistency(p, truth, n_draws=20000, seed=4)
+    assert [b["count"] for b in c["bins"]] == [6, 10]  # ascending confidence
+    for b, (n, q) in zip(c["bins"], [(6, 0.65), (10, 0.95)], strict=True):
+        assert b["accuracy_interval"] == pytest.approx(stats.binom.ppf([0.05, 0.95], n, q) / n)
+    # all right: observed ECE (6 * 0.35 + 10 * 0.05) / 16; its exact p-value by enumeration
+    assert c["ece"] == pytest.approx((6 * 0.35 + 10 * 0.05) / 16)
+    x1, x2 = np.meshgrid(np.arange(7), np.arange(11), indexing="ij")
+    ece = (np.abs(x1 - 6 * 0.65) + np.abs(x2 - 10 * 0.95)) / 16
+    w = stats.binom.pmf(x1, 6, 0.65) * stats.binom.pmf(x2, 10, 0.95)
+    assert c["p_value"] == pytest.approx(w[ece >= c["ece"] - 1e-12].sum(), abs=0.01)
+
+
+def test_label_calibration_can_leave_the_resampling_out():
+    cal = label_calibration(P4, T4, n_draws=0)
+    assert cal["ece_if_calibrated"] is None and cal["ece_p_value"] is None
+    assert cal["ece"] == expected_calibration_error(P4, T4)

@@ -211,7 +211,7 @@ def test_spread_samples_hide_what_their_actor_hides_and_take_its_colour():
         np.testing.assert_array_equal(t.source, S[k // 2, k % 2])
 
 
-def test_plot_reliability_draws_each_bin_inside_its_consistency_bar(tmp_path):
+def test_plot_reliability_draws_each_bin_with_its_consistency_bar(tmp_path):
     from bayesmotion.evaluation.calibration import calibration_consistency
     from bayesmotion.viz.calibration import plot_reliability
 

@@ -240,7 +240,8 @@ def calibration_consistency(probabilities, truth, n_bins: int = 10, n_draws: int
     and Smith 2007), conditional on the answers given.
 
     A posterior is calibrated when its top label is right with the probability it states. With
-    the answers held, each of ``n_draws`` replicates draws every clip's outcome as right with
+    the answers held (the conditional form; Broecker and Smith also resample the answers, which
+    gives wider bars), each of ``n_draws`` replicates draws every clip's outcome as right with
     its top probability, then computes the ECE and each reliability bin's accuracy. On few clips
     a calibrated posterior's ECE is far from 0 (the bins hold a handful of clips each), so the
     observed ECE is read against that distribution, not against 0.
@@ -254,9 +255,9 @@ def calibration_consistency(probabilities, truth, n_bins: int = 10, n_draws: int
 
     Returns:
         ``ece`` (observed); ``ece_if_calibrated``: the replicates' ``mean`` and central
-        ``interval`` (the mean, not the median: the ECE of a few clips takes few values, and
-        its median jumps between them with the replicates); ``p_value``: the fraction of
-        replicates whose ECE is at least the observed
+        ``interval`` (the mean: the ECE of a few clips takes few values, so its median is a
+        coarse summary); ``p_value``: (1 + the replicates whose ECE is at least the observed)
+        / (1 + ``n_draws``), ties counted against calibration, so the test is conservative
         (small: the answers are miscalibrated beyond what n clips explain); ``bins``: per
         non-empty bin ``lower``, ``upper``, ``count``, ``confidence``, ``accuracy`` and the
         replicates' central ``accuracy_interval`` (the bin's consistency bar); ``n_draws``,
@@ -272,7 +273,7 @@ def calibration_consistency(probabilities, truth, n_bins: int = 10, n_draws: int
     idx = _bin_index(conf, n_bins)
     rng = np.random.default_rng(seed)
     # each replicate's right answers per bin, drawn in chunks of about a million clips
-    kept = [int(round(b["lower"] * n_bins)) for b in bins]
+    kept = np.unique(idx)  # the non-empty bins, in the order reliability() lists them
     chunk = max(1, 1_000_000 // conf.size)
     hits = np.concatenate([_bin_hits(rng.random((min(chunk, int(n_draws) - s), conf.size)) < conf,
                                      idx, kept) for s in range(0, int(n_draws), chunk)])
@@ -289,7 +290,8 @@ def calibration_consistency(probabilities, truth, n_bins: int = 10, n_draws: int
             "ece_if_calibrated": {"mean": float(np.mean(ece)),
                                   "interval": [float(np.quantile(ece, lo)),
                                                float(np.quantile(ece, hi))]},
-            "p_value": float(np.mean(ece >= observed - 1e-12)), "bins": out_bins,
+            "p_value": float((1 + np.sum(ece >= observed - 1e-12)) / (1 + ece.size)),
+            "bins": out_bins,
             "n_draws": int(n_draws), "level": float(level)}
 
 
@@ -299,7 +301,7 @@ def _bin_hits(right, idx, kept) -> np.ndarray:
 
 
 def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
-                      confident: float = 0.99) -> dict:
+                      confident: float = 0.99, n_draws: int = 2000) -> dict:
     """What users read off label probabilities, for n labelled clips.
 
     Returns a dict: ``accuracy``; ``ece`` and ``reliability`` (:func:`reliability`);
@@ -309,8 +311,8 @@ def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
     ``brier`` (mean squared error of the probability vector against the one-hot truth);
     ``ece_if_calibrated`` and ``ece_p_value``: the ECE a calibrated posterior would show with
     these answers on these clips (mean and 90% interval), and how often it reaches the observed
-    one
-    (:func:`calibration_consistency`, 2,000 replicates, seed 0)."""
+    one (:func:`calibration_consistency` with ``n_draws`` replicates, seed 0; its cost grows as
+    ``n_draws`` x n; ``n_draws=0`` leaves both out, None)."""
     p, t = _label_args(probabilities, truth)
     if not 0 < q < 1:
         raise BayesmotionError(f"q must lie in (0, 1), got {q}")
@@ -320,7 +322,8 @@ def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
     inside = np.array([t[i] in order[i, :size[i]] for i in range(n)])
     right = np.argmax(p, 1) == t
     onehot = np.eye(K)[t]
-    consistency = calibration_consistency(p, t, n_bins)
+    consistency = (calibration_consistency(p, t, n_bins, n_draws) if n_draws
+                   else {"ece_if_calibrated": None, "p_value": None})
     return {"n": n, "accuracy": float(right.mean()),
             "ece": expected_calibration_error(p, t, n_bins),
             "reliability": reliability(p, t, n_bins),
