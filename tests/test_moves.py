@@ -130,6 +130,8 @@ def test_sample_posterior_rotates_style_vectors_and_keeps_log_density_exact(thre
     cov[rotated[4], rotated[4]] = 0.05 ** 2
     assert independence_block(post.target, cov).tolist() == sorted(free + [rotated[4]])
     assert independence_block(post.target, np.eye(ndim)).tolist() == free
+    # the run says which coordinates its independence step drew
+    assert {post.target.names[i] for i in free} <= set(post.info["independence_block"])
     x = post.chains[:3, -1]
     fresh = np.asarray(post.target.logp_batch(jnp.asarray(x)))
     np.testing.assert_allclose(post.log_prob[:3, -1], fresh, rtol=1e-9)
