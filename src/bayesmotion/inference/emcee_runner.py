@@ -177,7 +177,9 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
     info = {"seconds": seconds, "pace": pace.info, "factorised": False, **phase_stats(ran)}
     if independence:
         info["adapt_steps"] = n_adapt
-        info["independence_block"] = [target.names[i] for i in block]
+        names = getattr(target, "names", None)  # a bare target has indices only
+        info["independence_block"] = ([names[i] for i in block] if names is not None
+                                      else block.tolist())
         info["modes"] = [{"weight": m["weight"], "logp": m["logp"],
                           "log_evidence": m["log_evidence"], "searched_from": m["searched_from"],
                           "x": m["x"].tolist()} for m in modes]
