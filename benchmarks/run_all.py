@@ -53,6 +53,7 @@ BENCHMARKS = [
     "calibration_consistency",
     "posterior_convergence",
     "demo_posterior",
+    "pinned_threshold",
     "jax_versions",
     "sparse_scaling",
 ]
