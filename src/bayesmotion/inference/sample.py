@@ -68,7 +68,7 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         independence: add, after DE and the rotations, an independence Metropolis step
             (:class:`bayesmotion.inference.moves.IndependenceMove`) on the coordinates the
             rotations do not
-            move, plus the rotated ones the likelihood pins (Laplace sd < 0.1): a multivariate t (20
+            move, plus the rotated ones the likelihood pins (Laplace sd < 0.2): a multivariate t (20
             degrees of freedom) proposal from the Laplace approximation at the conditional MAP for
             the first min(150, n_steps // 4) steps, then from the sample mean and covariance of that
             adaptation's last two thirds (every walker pooled). Each phase is a fixed kernel; the
