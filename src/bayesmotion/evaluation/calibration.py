@@ -229,7 +229,11 @@ def expected_calibration_error(probabilities, truth, n_bins: int = 10) -> float:
     """Top-label expected calibration error: sum over :func:`reliability` bins of
     (count / n) |accuracy - confidence|. 0 for a calibrated posterior; a posterior answering
     P = 1 at accuracy 0.8 scores 0.2."""
-    bins = reliability(probabilities, truth, n_bins)
+    return _ece_of(reliability(probabilities, truth, n_bins))
+
+
+def _ece_of(bins) -> float:
+    """The ECE of :func:`reliability`'s bins."""
     n = sum(b["count"] for b in bins)
     return float(sum(b["count"] / n * abs(b["accuracy"] - b["confidence"]) for b in bins))
 
@@ -285,7 +289,7 @@ def calibration_consistency(probabilities, truth, n_bins: int = 10, n_draws: int
         ece += b["count"] / conf.size * np.abs(acc - b["confidence"])
         out_bins.append({**b, "accuracy_interval": [float(np.quantile(acc, lo)),
                                                      float(np.quantile(acc, hi))]})
-    observed = expected_calibration_error(p, t, n_bins)
+    observed = _ece_of(bins)
     return {"ece": observed,
             "ece_if_calibrated": {"mean": float(np.mean(ece)),
                                   "interval": [float(np.quantile(ece, lo)),
