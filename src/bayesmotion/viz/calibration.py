@@ -35,7 +35,10 @@ def plot_reliability(probabilities, truth, path: str | os.PathLike | None = None
         truth: (n,) true level indices.
         path: also save the figure here (PNG by default), atomically.
         ax: a 2-D Axes to draw into; a new figure when None.
-        n_bins, n_draws, level, seed: of :func:`calibration_consistency`.
+        n_bins: number of equal-width confidence bins.
+        n_draws: calibrated data sets drawn for the bars and the p-value.
+        level: coverage of each bin's consistency bar.
+        seed: of the draws.
         title: Axes title (default: the ECE line).
         dpi: resolution of the saved file.
     Returns:
