@@ -63,6 +63,7 @@ from bayesmotion.emotion.projection import (
     project,
     project_levels,
     projection_starts,
+    seen_predictor,
 )
 from bayesmotion.emotion.result import EmotionPosterior, pool_posteriors
 from bayesmotion.errors import BayesmotionError, warn
@@ -303,7 +304,10 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
                "init_var": float(model.spec.priors.init_var)}
     fixed_j = {k: jnp.asarray(v) for k, v in fixed.items()}
     conc_j = {k: jnp.asarray(v) for k, v in conc.items()}
-    args = (P, Yp, mask, fixed_j, conc_j)
+    # the given styles' cells alone (exact): a built-in handshake with its couple given sees 4
+    # of the 8 cells of the interaction and dynamics layers
+    P_seen = seen_predictor(P, fixed_j, statics["int_factors"], statics["dyn_factors"])
+    args = (P_seen, Yp, mask, fixed_j, conc_j)
     stage("encode")
     levels_info = {}
     if emotion_starts == "vertices":

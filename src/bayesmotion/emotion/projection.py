@@ -32,6 +32,7 @@ from jax.flatten_util import ravel_pytree
 from bayesmotion.emotion.density import clip_log_density
 from bayesmotion.gp.densities import LOG_2PI
 from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style
+from bayesmotion.model.predict import Predictor, restrict_to_styles
 from bayesmotion.optim import lbfgs
 
 ROUND_ITER = 100  # L-BFGS iterations between re-estimates of the diagonal scaling
@@ -345,10 +346,28 @@ def _level_rows(model) -> list:
             for g in (np.flatnonzero(level == k) for k in range(len(model.levels["emotion"])))]
 
 
+def seen_predictor(P: Predictor, fixed: dict, int_factors, dyn_factors) -> Predictor:
+    """P without the style cells a clip cannot see, whatever its free styles: the same density,
+    less work (:func:`bayesmotion.model.predict.restrict_to_styles`, exact).
+
+    A factor in ``fixed`` (factor -> its (K_f,) kernel style vector) keeps the cells whose
+    style meets that vector; any other factor is free and keeps every cell (a row of ones
+    meets every one-hot training style). With the emotion held at one level and the couple
+    given, a built-in handshake clip sees 1 of the 8 cells of the interaction and dynamics
+    layers; a walk held at one emotion, 1 of 4.
+    """
+    def rows(factors):
+        return [jnp.asarray(fixed[f])[None] if f in fixed
+                else jnp.ones((1, P.level_vectors[f].shape[0])) for f in factors]
+
+    return restrict_to_styles(P, rows(dyn_factors), rows(int_factors))
+
+
 def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc):
     """One projection per emotion level k with the emotion held at k's style vector, from the
     latents of the nearest frames of k's training trials; the other free styles (the couple,
-    when not given) are projected with it. Returns per level: (params, scipy result, log
+    when not given) are projected with it. Each level's density drops the style cells it
+    cannot see (:func:`seen_predictor`). Returns per level: (params, scipy result, log
     evidence, info) -- see :func:`laplace_log_evidence`."""
     Pm, Yp, mask, fixed_j, conc_j = args
     others = [f for f in inferred if f != "emotion"]
@@ -357,7 +376,8 @@ def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc):
     for k, rows in enumerate(_level_rows(model)):
         params = _start_params(model, Ys, B, rows, others, conc)
         fixed_k = {**fixed_j, "emotion": jnp.asarray(Pm.level_vectors["emotion"][k])}
-        args_k = (Pm, Yp, mask, fixed_k, {f: conc_j[f] for f in others})
+        Pk = seen_predictor(Pm, fixed_k, statics["int_factors"], statics["dyn_factors"])
+        args_k = (Pk, Yp, mask, fixed_k, {f: conc_j[f] for f in others})
         p, res = project(params, args_k, statics, max_iter, others, conc_o)
         log_ev, info = laplace_log_evidence(p, args_k, statics, T)
         out.append((p, res, log_ev, info))
