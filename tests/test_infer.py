@@ -767,3 +767,27 @@ def test_inference_with_the_seen_cells_follows_the_same_path(handshake_model, ha
         bad = inf.infer_emotion(handshake_model, trial, **kw)
     assert np.min(np.abs(np.subtract(bad.info["level_objectives"],
                                      want.info["level_objectives"]))) > 1.0
+
+
+def test_level_starts_keep_each_levels_best_optimum(tiny_model, tiny_data):
+    """level_starts=3 projects each level from its nearest-frame start (the level_starts=1
+    projection, reproduced) and two jittered copies, and keeps the best optimum: its
+    objective is the smallest of the three and its evidence is that start's."""
+    trial = tiny_data[tiny_data.labels("emotion").index("sad")]
+    kw = dict(n_steps=30, latent_uncertainty=False, seed=4)
+    one = bm.infer_emotion(tiny_model, trial, **kw)
+    many = bm.infer_emotion(tiny_model, trial, level_starts=3, **kw)
+    for k, (a, b) in enumerate(zip(one.info["level_laplace"], many.info["level_laplace"],
+                                   strict=True)):
+        assert len(b["start_objectives"]) == len(b["start_log_evidence"]) == 3
+        assert b["start_objectives"][0] == pytest.approx(a["start_objectives"][0], rel=1e-12)
+        j = int(np.argmin(b["start_objectives"]))
+        assert many.info["level_objectives"][k] == b["start_objectives"][j]
+        assert many.info["level_log_evidence"][k] == b["start_log_evidence"][j]
+        assert len(set(b["start_objectives"])) == 3  # the jittered starts ran projections of
+        # their own
+    for bad in (0, 1.5, True, "3"):
+        with pytest.raises(bm.BayesmotionError, match="level_starts"):
+            bm.infer_emotion(tiny_model, trial, level_starts=bad)
+    with pytest.raises(bm.BayesmotionError, match="level_starts > 1 needs"):
+        bm.infer_emotion(tiny_model, trial, level_starts=2, emotion_starts="nearest")

@@ -160,7 +160,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                   method: str = "emcee", seed: int = 0, n_walkers: int = 64, n_steps: int = 150,
                   n_draws: int = 4, max_iter: int = 200, latent_uncertainty: bool = True,
                   likelihood_power: float = 1.0,
-                  emotion_starts: str = "vertices",
+                  emotion_starts: str = "vertices", level_starts: int = 1,
                   effective_frames: float | None = None) -> EmotionPosterior:
     """Posterior over the emotion coordinates of an observed clip.
 
@@ -208,6 +208,13 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             ``level_probabilities`` (the plain evidence's posterior; ``probabilities`` adds
             the recording effect and the out-of-distribution shrinkage) and the Laplace
             details per level.
+        level_starts: projections per emotion level (``emotion_starts="vertices"``): the
+            nearest-frame start and ``level_starts - 1`` copies of it jittered by N(0, 0.02^2)
+            in every latent coordinate; each level keeps its best optimum, and ``info``'s
+            ``level_laplace`` holds every start's objective and evidence. The clip density is
+            multimodal in the latents, so one start gives a level a noisy evidence (see
+            :mod:`bayesmotion.emotion.projection`); each start costs one more projection and
+            Hessian per level.
         effective_frames: n_eff, how many of the clip's frames count as independent evidence
             for its label (:mod:`bayesmotion.emotion.evidence`): the label probabilities
             raise the levels' evidence to the power n_eff / (n_eff + T)
@@ -228,6 +235,13 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                                f"got {emotion_starts!r}")
     if method != "emcee":
         raise BayesmotionError(f"method must be 'emcee', got {method!r}")
+    if (isinstance(level_starts, bool) or not isinstance(level_starts, int | np.integer)
+            or level_starts < 1):
+        raise BayesmotionError(f"level_starts (projections per emotion level) must be a "
+                               f"positive integer, got {level_starts!r}")
+    if level_starts > 1 and emotion_starts != "vertices":
+        raise BayesmotionError(f"level_starts > 1 needs emotion_starts='vertices' (one "
+                               f"projection per level), got {emotion_starts!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
         raise BayesmotionError(f"max_iter (L-BFGS iterations of the projection) must be a "
                                f"positive integer, got {max_iter!r}")
@@ -243,12 +257,12 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
         parts = [_infer_one(model.model, model.predictor(int(i)), clip, frames, given, prior,
                             seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
                             latent_uncertainty and k == 0, likelihood_power, emotion_starts,
-                            n_eff)
+                            n_eff, int(level_starts))
                  for k, i in enumerate(idx)]
         return pool_posteriors(parts)
     return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
                       n_steps, max_iter, latent_uncertainty, likelihood_power, emotion_starts,
-                      n_eff)
+                      n_eff, int(level_starts))
 
 
 def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
@@ -267,7 +281,7 @@ def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
 
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
                latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices",
-               n_eff=(float("inf"), False)):
+               n_eff=(float("inf"), False), level_starts=1):
     import emcee
 
     t0 = time.perf_counter()
@@ -312,7 +326,8 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     levels_info = {}
     if emotion_starts == "vertices":
         params, res, fits, levels_info = _vertex_choice(model, P, Ys, B, T, args, statics,
-                                                       max_iter, inferred, conc)
+                                                       max_iter, inferred, conc, level_starts,
+                                                       seed)
         # the chosen level's latents and the free styles together, from just inside its vertex:
         # the clip's emotion may lie between levels (an interpolated clip: mean absolute error
         # 0.03 over s in {0, .25, .5, .75, 1} on generated handshakes, 0.15 without this step)
@@ -458,13 +473,15 @@ def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:
     return assess(reference, z2, None if ref is None else recording_distance(ref, Ys))
 
 
-def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc):
+def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
+                   n_starts=1, seed=0):
     """The emotion level with the largest posterior probability under the Laplace evidence of
     each level (bayesmotion.emotion.projection.project_levels) and the prior probability that the
     level
     is the largest coordinate; its projection, with the free emotion set just inside its
     vertex (the style sampler starts from the styles' mode at these latents)."""
-    out = project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc)
+    out = project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
+                         n_starts, seed)
     log_ev = np.array([o[2] for o in out])
     logp = log_ev + np.log(_largest_prior(conc["emotion"]))
     prob = np.exp(logp - logp.max())

@@ -37,6 +37,7 @@ from bayesmotion.optim import lbfgs
 
 ROUND_ITER = 100  # L-BFGS iterations between re-estimates of the diagonal scaling
 HVP_CHUNK = 64  # Hessian-vector products per vmapped batch
+START_JITTER = 0.02  # sd of the jitter of project_levels' further starts, in latent units
 STATIC_ARGS = ("int_factors", "dyn_factors", "init_var")
 
 
@@ -363,22 +364,45 @@ def seen_predictor(P: Predictor, fixed: dict, int_factors, dyn_factors) -> Predi
     return restrict_to_styles(P, rows(dyn_factors), rows(int_factors))
 
 
-def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc):
+def _jittered(params: dict, sd: float, rng: np.random.Generator) -> dict:
+    """``params`` with N(0, sd^2) added to every latent coordinate (X and I); styles kept."""
+    out = dict(params)
+    for k in ("X", "I"):
+        out[k] = params[k] + jnp.asarray(sd * rng.standard_normal(np.shape(params[k])))
+    return out
+
+
+def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
+                   n_starts: int = 1, seed: int = 0):
     """One projection per emotion level k with the emotion held at k's style vector, from the
     latents of the nearest frames of k's training trials; the other free styles (the couple,
     when not given) are projected with it. Each level's density drops the style cells it
-    cannot see (:func:`seen_predictor`). Returns per level: (params, scipy result, log
-    evidence, info) -- see :func:`laplace_log_evidence`."""
+    cannot see (:func:`seen_predictor`). With ``n_starts`` > 1 each level is projected from
+    that start and ``n_starts - 1`` copies of it jittered by N(0, START_JITTER^2) in every
+    latent coordinate (seeded by ``seed``), and the best optimum is kept: the clip density is
+    multimodal in the latents. Returns per level: (params, scipy result, log evidence, info)
+    -- see :func:`laplace_log_evidence`; info adds every start's ``start_objectives`` and
+    ``start_log_evidence`` (start 0 the unjittered one)."""
     Pm, Yp, mask, fixed_j, conc_j = args
     others = [f for f in inferred if f != "emotion"]
     conc_o = {f: conc[f] for f in others}
+    rng = np.random.default_rng(seed)
     out = []
     for k, rows in enumerate(_level_rows(model)):
         params = _start_params(model, Ys, B, rows, others, conc)
         fixed_k = {**fixed_j, "emotion": jnp.asarray(Pm.level_vectors["emotion"][k])}
         Pk = seen_predictor(Pm, fixed_k, statics["int_factors"], statics["dyn_factors"])
         args_k = (Pk, Yp, mask, fixed_k, {f: conc_j[f] for f in others})
-        p, res = project(params, args_k, statics, max_iter, others, conc_o)
-        log_ev, info = laplace_log_evidence(p, args_k, statics, T)
-        out.append((p, res, log_ev, info))
+        best, objectives, evidences = None, [], []
+        for j in range(n_starts):
+            start = params if j == 0 else _jittered(params, START_JITTER, rng)
+            p, res = project(start, args_k, statics, max_iter, others, conc_o)
+            log_ev, info = laplace_log_evidence(p, args_k, statics, T)
+            objectives.append(float(res.fun))
+            evidences.append(float(log_ev))
+            if best is None or res.fun < best[1].fun:
+                best = (p, res, log_ev, info)
+        p, res, log_ev, info = best
+        out.append((p, res, log_ev, {**info, "start_objectives": objectives,
+                                     "start_log_evidence": evidences}))
     return out
