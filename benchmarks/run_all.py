@@ -56,6 +56,7 @@ BENCHMARKS = [
     "pinned_threshold",
     "jax_versions",
     "sparse_scaling",
+    "projection_starts",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 

@@ -212,9 +212,12 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             nearest-frame start and ``level_starts - 1`` copies of it jittered by N(0, 0.02^2)
             in every latent coordinate; each level keeps its best optimum, and ``info``'s
             ``level_laplace`` holds every start's objective and evidence. The clip density is
-            multimodal in the latents, so one start gives a level a noisy evidence (see
-            :mod:`bayesmotion.emotion.projection`); each start costs one more projection and
-            Hessian per level.
+            multimodal in the latents, so one start gives a level a noisy evidence: on 16
+            held-out Bandai walks one level's evidence moved by a median 164 nats between
+            starts, and two starts per level took the plain-evidence accuracy from 75% to
+            93.8% and the wrong answers with P >= 0.99 from 25% to 6%
+            (``benchmarks/results/projection_starts.json``). Each start costs one more
+            projection and Hessian per level.
         effective_frames: n_eff, how many of the clip's frames count as independent evidence
             for its label (:mod:`bayesmotion.emotion.evidence`): the label probabilities
             raise the levels' evidence to the power n_eff / (n_eff + T)
