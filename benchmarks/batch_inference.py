@@ -11,11 +11,16 @@ workers=2)`` from a fresh process (each worker compiles on its first clip). Repo
 seconds of each, clips per second over the whole run, and clips per second once warm (from the
 moment every process has finished its first clip to the last clip, from the clips' finishing
 times); the target is 2 workers >= 1.8x one process on this 2-core machine.
+
+A third run, the same serial process pinned to one core (``os.sched_setaffinity``), says what
+one process already takes from the second core: 2 workers can be at most (1-core rate x 2) /
+(2-core rate) times one unpinned process, whatever the scheduler.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -96,10 +101,11 @@ def run(quick: bool) -> dict:
             clips.append((f"clip{i:02d}", files))
         py = sys.executable
 
-        def child(code, *args):
+        def child(code, *args, cores=None):
             t = time.perf_counter()
+            pin = None if cores is None else (lambda: os.sched_setaffinity(0, cores))
             r = subprocess.run([py, "-c", code, *map(str, args)], capture_output=True,
-                               text=True, timeout=3600)
+                               text=True, timeout=3600, preexec_fn=pin)
             if r.returncode:
                 raise RuntimeError(r.stderr[-3000:])
             out = json.loads(r.stdout.strip().splitlines()[-1])
@@ -107,6 +113,9 @@ def run(quick: bool) -> dict:
             return out
 
         serial = child(SERIAL, model_path, json.dumps(clips), cfg["seed"])
+        one_core = (child(SERIAL, model_path, json.dumps(clips), cfg["seed"], cores={0})
+                    if hasattr(os, "sched_setaffinity") and len(os.sched_getaffinity(0)) > 1
+                    else None)
         parallel = child(PARALLEL, model_path, folder, d / "table.csv", cfg["seed"])
     s, p = _rates(serial), _rates(parallel)
     same = ({r["clip"]: r["label"] for r in serial["rows"]}
@@ -124,7 +133,17 @@ def run(quick: bool) -> dict:
                  f"{p['warm_clips']} and {s['warm_clips']} clips after every process's first"),
         headline("same labels from both", same, "", "True", same),
     ]
+    one = None
+    if one_core is not None:
+        one = _rates(one_core)
+        if one["warm_clips_per_s"] and s["warm_clips_per_s"] and p["warm_clips_per_s"]:
+            gain = s["warm_clips_per_s"] / one["warm_clips_per_s"]
+            rows.append(headline(
+                "  one process on 2 cores / on 1 core, once warm", round(gain, 2), "x", "", None,
+                f"so 2 workers can reach at most {2 / gain:.2f}x one process here; they reach "
+                f"{p['warm_clips_per_s'] / one['warm_clips_per_s']:.2f}x the 1-core process"))
     return {"settings": cfg, "serial": {**s, "rows": serial["rows"]},
+            "serial_one_core": None if one is None else {**one, "rows": one_core["rows"]},
             "parallel": {**p, "rows": parallel["rows"]}, "ratio_whole_run": total,
             "ratio_warm": warm, "same_labels": same, "headline": rows}
 
