@@ -104,12 +104,19 @@ def summarize(rows: list, levels: list, S: int) -> dict:
     one, many = _answers(ev[..., 0], truth), _answers(best, truth)
     by_starts = [{"starts": k, **{key: v for key, v in _answers(best_of(k), truth).items()
                                   if key != "probabilities"}} for k in range(1, S + 1)]
+    # each start alone: is the unjittered one (exactly on training latents) typical?
+    single = [{"start": j, **{key: v for key, v in _answers(ev[..., j], truth).items()
+                              if key != "probabilities"}} for j in range(S)]
+    beaten = (obj < obj[..., :1]).sum(2)  # jittered starts better than the unjittered one
     spread = ev.max(2) - ev.min(2)  # (folds, K)
     gain = best - ev[..., 0]
     flips = int(np.sum(np.argmax(best, 1) != np.argmax(ev[..., 0], 1)))
     n = len(rows)
     out = {"levels": levels, "folds": rows,
            "one_start": one, "best_of_starts": many, "by_starts": by_starts,
+           "each_start_alone": single,
+           "jittered_starts_beating_the_first": np.bincount(beaten.ravel(),
+                                                            minlength=S).tolist(),
            "evidence_spread": {"median": float(np.median(spread)),
                                "max": float(spread.max()),
                                "per_fold_level": spread.tolist()},
@@ -126,6 +133,12 @@ def summarize(rows: list, levels: list, S: int) -> dict:
                  f"best of {S}: {100 * many['accuracy']:.1f}%; labels changed in {flips} of "
                  f"{n} folds; best of 1..{S}: "
                  + ", ".join(f"{100 * b['accuracy']:.0f}" for b in by_starts) + "%"),
+        headline("  plain-evidence accuracy of each jittered start alone", 100 * float(
+                     np.mean([a["accuracy"] for a in single[1:]])), "%", "", None,
+                 "mean over the jittered starts ("
+                 + ", ".join(f"{100 * a['accuracy']:.1f}" for a in single[1:])
+                 + "%), against the unjittered start's "
+                 f"{100 * single[0]['accuracy']:.1f}%"),
         headline(f"  ECE, one start / best of {S}", one["ece"], "", "", None,
                  f"best of {S}: {many['ece']:.3f}; wrong with P >= 0.99: "
                  f"{100 * one['confident_wrong']:.0f}% / {100 * many['confident_wrong']:.0f}%; "
