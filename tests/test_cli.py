@@ -84,6 +84,11 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     assert many["emotion_starts"] == "levels" and near["emotion_starts"] == "nearest"
     # the nearest-frame start is among the level starts: the best optimum is never worse
     assert many["map_objective"] <= near["map_objective"] + 1e-9
+    assert out["level_starts"] == 1  # the default
+    assert main(["infer", str(model), *clips, "--json", "--level-starts", "2"]) == 0
+    assert json.loads(capsys.readouterr().out)["level_starts"] == 2
+    assert "--level-starts" in one_line_error(
+        capsys, ["infer", str(model), *clips, "--level-starts", "0"])
 
 
 @pytest.mark.slow

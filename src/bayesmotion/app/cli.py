@@ -160,6 +160,10 @@ def _parser() -> argparse.ArgumentParser:
                         "projection from the nearest training frames (about 3x faster); "
                         "'levels': that start and one from each emotion level's frames, the "
                         "best optimum kept")
+    i.add_argument("--level-starts", type=int, default=1, metavar="K",
+                   help="with 'vertices': projections per emotion level, the nearest-frame "
+                        "start and K-1 jittered copies, the best kept (default 1; 2 or more "
+                        "for real recordings, K times the projections' time)")
     i.add_argument("--workers", type=int, default=2,
                    help="with a folder: processes of the local Dask cluster (default 2)")
     i.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -182,6 +186,8 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--emotion-starts", choices=("nearest", "levels", "vertices"),
                    default="vertices",
                    help="projection starts of every inference (see 'infer')")
+    e.add_argument("--level-starts", type=int, default=1, metavar="K",
+                   help="projections per emotion level of every inference (see 'infer')")
     e.add_argument("--json", default=None, help="write the result to this JSON file")
     v = add("view", "an interactive 3-D viewer page of motion files")
     v.add_argument("files", nargs="+",
@@ -342,6 +348,7 @@ def _cmd_view(a):
 
 def _cmd_infer(a):
     validate.seed(a.seed, "--seed")
+    validate.integer(a.level_starts, "--level-starts", low=1)
     if len(a.clips) == 1 and Path(a.clips[0]).is_dir():
         return _infer_folder(a)
     for c in a.clips:
@@ -351,7 +358,7 @@ def _cmd_infer(a):
         warnings.simplefilter("always", OutOfDistributionWarning)
         ep = infer_emotion(m, a.clips if len(a.clips) > 1 else a.clips[0], couple=a.couple,
                            seed=a.seed, likelihood_power=a.likelihood_power,
-                           emotion_starts=a.emotion_starts)
+                           emotion_starts=a.emotion_starts, level_starts=a.level_starts)
     for w in caught:  # the flag is part of the answer: one line on stderr, and in the JSON
         if issubclass(w.category, OutOfDistributionWarning):
             print(f"warning: {w.message}", file=sys.stderr)
@@ -365,6 +372,7 @@ def _cmd_infer(a):
                           "n_frames": ep.info["n_frames"],
                           "likelihood_power": ep.info["likelihood_power"],
                           "emotion_starts": ep.info["emotion_starts"],
+                          "level_starts": a.level_starts,
                           "map_objective": ep.info["map_objective"],
                           "out_of_distribution": ep.out_of_distribution,
                           "ood_score": ep.info["ood"]["score"],
@@ -383,7 +391,7 @@ def _infer_folder(a):
     table = validate.output_file(a.table if a.table else folder / "emotions.csv", "--table")
     rows = infer_many(a.model, folder, table, workers=a.workers, scheduler=a.scheduler,
                       seed=a.seed, couple=a.couple, likelihood_power=a.likelihood_power,
-                      emotion_starts=a.emotion_starts)
+                      emotion_starts=a.emotion_starts, level_starts=a.level_starts)
     errors = [r for r in rows if r["error"]]
     flagged = sum(str(r["out_of_distribution"]) == "True" for r in rows)
     print(f"wrote {table}: {len(rows)} clips, {len(errors)} failed, {flagged} out of "
@@ -424,6 +432,7 @@ def _check_fits(m, ds, model_path, data) -> None:
 
 def _cmd_evaluate(a):
     validate.integer(a.refit_iter, "--refit-iter", low=1)
+    validate.integer(a.level_starts, "--level-starts", low=1)
     if a.json is not None:
         validate.output_file(a.json, "--json")
     if a.save_calibrated is not None:
@@ -441,7 +450,8 @@ def _cmd_evaluate(a):
     validate.check_memory(validate.fit_memory(N, m.n_actors + 2, inducing=m.spec.inducing),
                           f"refitting {N} frames")
     res = leave_one_out(ds, m, refit_iter=a.refit_iter, calibrate=a.calibrate,
-                        infer_kwargs={"emotion_starts": a.emotion_starts})
+                        infer_kwargs={"emotion_starts": a.emotion_starts,
+                                      "level_starts": a.level_starts})
     print(format_confusion(res))
     hpd = lambda r: "" if r.get("hpd_coverage") is None else \
         f"highest-density region {r['hpd_coverage']:.2f}, "
