@@ -37,7 +37,9 @@ from bayesmotion.optim import lbfgs
 
 ROUND_ITER = 100  # L-BFGS iterations between re-estimates of the diagonal scaling
 HVP_CHUNK = 64  # Hessian-vector products per vmapped batch
-START_JITTER = 0.02  # sd of the jitter of project_levels' further starts, in latent units
+# sd of the jitter of project_levels' further starts, in latent units (the latents' sd is
+# about 0.45; benchmarks/results/projection_starts.json measured this one value)
+START_JITTER = 0.02
 STATIC_ARGS = ("int_factors", "dyn_factors", "init_var")
 
 
@@ -361,7 +363,14 @@ def seen_predictor(P: Predictor, fixed: dict, int_factors, dyn_factors) -> Predi
         return [jnp.asarray(fixed[f])[None] if f in fixed
                 else jnp.ones((1, P.level_vectors[f].shape[0])) for f in factors]
 
-    return restrict_to_styles(P, rows(dyn_factors), rows(int_factors))
+    R = restrict_to_styles(P, rows(dyn_factors), rows(int_factors))
+    if (_n_cells(R.inter) == _n_cells(P.inter) and _n_cells(R.dyn) == _n_cells(P.dyn)):
+        return P  # nothing dropped: keep the shapes the model's programs compiled for
+    return R
+
+
+def _n_cells(fit) -> int | None:
+    return None if fit.rows is None else int(np.shape(fit.rows)[0])
 
 
 def _jittered(params: dict, sd: float, rng: np.random.Generator) -> dict:
@@ -379,16 +388,17 @@ def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
     when not given) are projected with it. Each level's density drops the style cells it
     cannot see (:func:`seen_predictor`). With ``n_starts`` > 1 each level is projected from
     that start and ``n_starts - 1`` copies of it jittered by N(0, START_JITTER^2) in every
-    latent coordinate (seeded by ``seed``), and the best optimum is kept: the clip density is
+    latent coordinate (seeded by ``seed`` and the level, so the starts of ``n_starts`` = k are
+    the first k of any larger ``n_starts``), and the best optimum is kept: the clip density is
     multimodal in the latents. Returns per level: (params, scipy result, log evidence, info)
     -- see :func:`laplace_log_evidence`; info adds every start's ``start_objectives`` and
     ``start_log_evidence`` (start 0 the unjittered one)."""
     Pm, Yp, mask, fixed_j, conc_j = args
     others = [f for f in inferred if f != "emotion"]
     conc_o = {f: conc[f] for f in others}
-    rng = np.random.default_rng(seed)
     out = []
     for k, rows in enumerate(_level_rows(model)):
+        rng = np.random.default_rng([seed, k])
         params = _start_params(model, Ys, B, rows, others, conc)
         fixed_k = {**fixed_j, "emotion": jnp.asarray(Pm.level_vectors["emotion"][k])}
         Pk = seen_predictor(Pm, fixed_k, statics["int_factors"], statics["dyn_factors"])
