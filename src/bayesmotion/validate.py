@@ -405,6 +405,21 @@ def check_infer_args(seed_value, n_walkers, n_steps, n_draws, couple, styles, pr
                                    f"{_short(prior)}")
 
 
+def check_projection_starts(emotion_starts, level_starts, flag: str = "level_starts") -> None:
+    """``infer_emotion``'s ``emotion_starts`` and ``level_starts`` (``flag``: how the caller
+    names the latter, e.g. ``--level-starts``), checked before any work is started."""
+    if emotion_starts not in ("nearest", "levels", "vertices"):
+        raise BayesmotionError(f"emotion_starts must be 'nearest', 'levels' or 'vertices', "
+                               f"got {emotion_starts!r}")
+    if _is_bool(level_starts) or not isinstance(level_starts, numbers.Integral) \
+            or level_starts < 1:
+        raise BayesmotionError(f"{flag} (projections per emotion level) must be a positive "
+                               f"integer, got {level_starts!r}")
+    if level_starts > 1 and emotion_starts != "vertices":
+        raise BayesmotionError(f"{flag} > 1 needs emotion_starts='vertices' (one projection "
+                               f"per level), got {emotion_starts!r}")
+
+
 def check_infer_memory(clip, fps: float, n_train_frames: int, n_layers: int, n_walkers: int,
                        n_steps: int) -> None:
     """Refuse an inference whose :func:`infer_memory` exceeds the available memory (the clip's

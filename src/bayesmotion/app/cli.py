@@ -162,8 +162,8 @@ def _parser() -> argparse.ArgumentParser:
                         "best optimum kept")
     i.add_argument("--level-starts", type=int, default=1, metavar="K",
                    help="with 'vertices': projections per emotion level, the nearest-frame "
-                        "start and K-1 jittered copies, the best kept (default 1; 2 or more "
-                        "for real recordings, K times the projections' time)")
+                        "start and K-1 jittered copies, the best kept (default 1; 3 or more "
+                        "for real recordings; each start adds a projection per level)")
     i.add_argument("--workers", type=int, default=2,
                    help="with a folder: processes of the local Dask cluster (default 2)")
     i.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -348,7 +348,7 @@ def _cmd_view(a):
 
 def _cmd_infer(a):
     validate.seed(a.seed, "--seed")
-    validate.integer(a.level_starts, "--level-starts", low=1)
+    validate.check_projection_starts(a.emotion_starts, a.level_starts, "--level-starts")
     if len(a.clips) == 1 and Path(a.clips[0]).is_dir():
         return _infer_folder(a)
     for c in a.clips:
@@ -372,7 +372,7 @@ def _cmd_infer(a):
                           "n_frames": ep.info["n_frames"],
                           "likelihood_power": ep.info["likelihood_power"],
                           "emotion_starts": ep.info["emotion_starts"],
-                          "level_starts": a.level_starts,
+                          "level_starts": ep.info["level_starts"],
                           "map_objective": ep.info["map_objective"],
                           "out_of_distribution": ep.out_of_distribution,
                           "ood_score": ep.info["ood"]["score"],
@@ -432,7 +432,7 @@ def _check_fits(m, ds, model_path, data) -> None:
 
 def _cmd_evaluate(a):
     validate.integer(a.refit_iter, "--refit-iter", low=1)
-    validate.integer(a.level_starts, "--level-starts", low=1)
+    validate.check_projection_starts(a.emotion_starts, a.level_starts, "--level-starts")
     if a.json is not None:
         validate.output_file(a.json, "--json")
     if a.save_calibrated is not None:

@@ -43,6 +43,7 @@ import numpy as np
 from bayesmotion._config import release_compiled_programs
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.distributed import check_workers, dask_client, model_bytes, worker_model
+from bayesmotion.validate import check_projection_starts
 
 FIXED = ("clip", "files", "label", "label_set_90")
 TAIL = ("out_of_distribution", "ood_score", "in_distribution_weight", "n_frames", "seconds",
@@ -216,6 +217,8 @@ def infer_many(model, clips, out=None, *, client=None, workers: int = 2,
                                ) from None
     from tqdm.auto import tqdm
 
+    check_projection_starts(infer_kwargs.get("emotion_starts", "vertices"),
+                            infer_kwargs.get("level_starts", 1))
     data = model_bytes(model)
     fitted = worker_model(data)
     named = _named(clips, fitted.n_actors)

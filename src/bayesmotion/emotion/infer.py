@@ -73,7 +73,7 @@ from bayesmotion.model.generate import style_coords
 from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style, style_to_simplex
 from bayesmotion.model.predict import sparse_layers, style_vectors
 from bayesmotion.shapes import padded_length
-from bayesmotion.validate import check_infer_args, check_infer_memory
+from bayesmotion.validate import check_infer_args, check_infer_memory, check_projection_starts
 
 
 @partial(jax.jit, static_argnames=STATIC_ARGS + ("free",))
@@ -214,10 +214,11 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             ``level_laplace`` holds every start's objective and evidence. The clip density is
             multimodal in the latents, so one start gives a level a noisy evidence: on 16
             held-out Bandai walks one level's evidence moved by a median 164 nats between
-            starts, and two starts per level took the plain-evidence accuracy from 75% to
-            93.8% and the wrong answers with P >= 0.99 from 25% to 6%
-            (``benchmarks/results/projection_starts.json``). Each start costs one more
-            projection and Hessian per level.
+            starts, and the plain-evidence accuracy was 75% with one start, 90% on average
+            (81-94%) with two, 93% with three and 93.8% with four to six
+            (``benchmarks/results/projection_starts.json``). Each start adds a projection
+            and a Hessian per level (a projection per couple level when the couple is
+            inferred).
         effective_frames: n_eff, how many of the clip's frames count as independent evidence
             for its label (:mod:`bayesmotion.emotion.evidence`): the label probabilities
             raise the levels' evidence to the power n_eff / (n_eff + T)
@@ -233,18 +234,9 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
     fitted = model.model if isinstance(model, Posterior) else model
     check_infer_memory(clip, fitted.fps, fitted.predictor_rows, fitted.n_actors + 2,
                        n_walkers, n_steps)
-    if emotion_starts not in ("nearest", "levels", "vertices"):
-        raise BayesmotionError(f"emotion_starts must be 'nearest', 'levels' or 'vertices', "
-                               f"got {emotion_starts!r}")
+    check_projection_starts(emotion_starts, level_starts)
     if method != "emcee":
         raise BayesmotionError(f"method must be 'emcee', got {method!r}")
-    if (isinstance(level_starts, bool) or not isinstance(level_starts, int | np.integer)
-            or level_starts < 1):
-        raise BayesmotionError(f"level_starts (projections per emotion level) must be a "
-                               f"positive integer, got {level_starts!r}")
-    if level_starts > 1 and emotion_starts != "vertices":
-        raise BayesmotionError(f"level_starts > 1 needs emotion_starts='vertices' (one "
-                               f"projection per level), got {emotion_starts!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
         raise BayesmotionError(f"max_iter (L-BFGS iterations of the projection) must be a "
                                f"positive integer, got {max_iter!r}")
@@ -396,7 +388,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
             "tau": tau, "likelihood_power": float(likelihood_power),
             "acceptance": float(np.mean(sampler.acceptance_fraction)),
             "map_objective": float(res.fun), "map_iterations": int(res.nit),
-            "emotion_starts": emotion_starts, **levels_info,
+            "emotion_starts": emotion_starts, "level_starts": level_starts, **levels_info,
             "start_objectives": [float(r.fun) for _, r in fits],
             "n_samples": int(chain.shape[0] * chain.shape[1]),
             "ess": float(chain.shape[0] * chain.shape[1] / np.max(tau))}

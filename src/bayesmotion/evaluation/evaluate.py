@@ -45,6 +45,7 @@ from bayesmotion.evaluation.calibration import (
 )
 from bayesmotion.model.params import AR_KEY, STYLE_PREFIX
 from bayesmotion.model.spec import HGPDM
+from bayesmotion.validate import check_projection_starts
 
 
 def _fold_init(full, keep: list[int]) -> dict:
@@ -240,6 +241,8 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
     if taken:
         raise BayesmotionError(f"infer_kwargs may not set {sorted(taken)}: leave_one_out sets "
                                f"them")
+    check_projection_starts(infer_kwargs.get("emotion_starts", "vertices"),
+                            infer_kwargs.get("level_starts", 1))
     if calibrate not in (True, False, "labels"):
         raise BayesmotionError(f"calibrate must be True, False or 'labels', got {calibrate!r}")
     if calibrate and len(dataset) < 3:
