@@ -89,6 +89,9 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     assert json.loads(capsys.readouterr().out)["level_starts"] == 2
     assert "--level-starts" in one_line_error(
         capsys, ["infer", str(model), *clips, "--level-starts", "0"])
+    assert "--level-starts > 1 needs" in one_line_error(
+        capsys, ["infer", str(model), *clips, "--level-starts", "2", "--emotion-starts",
+                 "nearest"])
 
 
 @pytest.mark.slow

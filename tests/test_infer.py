@@ -786,8 +786,55 @@ def test_level_starts_keep_each_levels_best_optimum(tiny_model, tiny_data):
         assert many.info["level_log_evidence"][k] == b["start_log_evidence"][j]
         assert len(set(b["start_objectives"])) == 3  # the jittered starts ran projections of
         # their own
+    assert many.info["level_starts"] == 3 and one.info["level_starts"] == 1
+    # each level's jitter is seeded by the level: two starts are the first two of three
+    two = bm.infer_emotion(tiny_model, trial, level_starts=2, **kw)
+    for a, b in zip(two.info["level_laplace"], many.info["level_laplace"], strict=True):
+        np.testing.assert_allclose(a["start_objectives"], b["start_objectives"][:2],
+                                   rtol=1e-12)
     for bad in (0, 1.5, True, "3"):
         with pytest.raises(bm.BayesmotionError, match="level_starts"):
             bm.infer_emotion(tiny_model, trial, level_starts=bad)
     with pytest.raises(bm.BayesmotionError, match="level_starts > 1 needs"):
         bm.infer_emotion(tiny_model, trial, level_starts=2, emotion_starts="nearest")
+    # checked before any fold is refitted
+    from bayesmotion.evaluation.evaluate import leave_one_out
+
+    with pytest.raises(bm.BayesmotionError, match="level_starts > 1 needs"):
+        leave_one_out(tiny_data, tiny_model, baselines=False,
+                      infer_kwargs={"level_starts": 2, "emotion_starts": "nearest"})
+
+
+def test_the_seen_predictor_restricts_each_layer_by_its_own_factors():
+    """Interaction styles of the couple alone, dynamics styles of the emotion alone: the
+    couple's cells leave the interaction layer, the emotion's the dynamics layer, and the clip
+    density is the full predictor's."""
+    import jax.numpy as jnp
+
+    from bayesmotion.emotion.clip import clip_poses
+    from bayesmotion.emotion.density import clip_log_density
+    from bayesmotion.emotion.projection import init_latents, seen_predictor
+
+    data = bm.load_handshakes(fps=5.0)
+    m = bm.HGPDM(interaction_factors=("couple",), dynamics_factors=("emotion",)).fit(
+        data, max_iter=20, progress=False)
+    P = m.predictor()
+    trial = data[3]
+    fixed = {f: jnp.asarray(P.level_vectors[f][m.levels[f].index(trial.labels[f])])
+             for f in ("couple", "emotion")}
+    statics = dict(int_factors=("couple",), dyn_factors=("emotion",),
+                   init_var=float(m.spec.priors.init_var))
+    R = seen_predictor(P, fixed, statics["int_factors"], statics["dyn_factors"])
+    assert P.inter.Linv.shape[0] == len(m.levels["couple"]) > R.inter.Linv.shape[0] == 1
+    assert P.dyn.Linv.shape[0] == len(m.levels["emotion"]) > R.dyn.Linv.shape[0] == 1
+    Ys = clip_poses(m, trial)
+    T, B = Ys[0].shape[0], 16
+    mask = jnp.asarray(np.arange(B) < T)
+    Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
+    X, I, _ = init_latents(m, Ys, B)
+    params = {"X": jnp.asarray(X), "I": jnp.asarray(I)}
+    want = float(clip_log_density(P, params, Yp, mask, fixed, {}, **statics))
+    got = float(clip_log_density(R, params, Yp, mask, fixed, {}, **statics))
+    np.testing.assert_allclose(got, want, rtol=1e-11)
+    # nothing to drop: the predictor itself (its compiled shapes) comes back
+    assert seen_predictor(P, {}, statics["int_factors"], statics["dyn_factors"]) is P
