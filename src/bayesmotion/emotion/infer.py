@@ -182,7 +182,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             covering each chain's burn-in), and their samples are pooled.
         max_iter: L-BFGS iterations of the projection (per start). The default keeps a
             20-frame handshake under 2 s (``benchmarks/results/infer_speed.json``: median
-            1.54 s with "vertices", 0.54 s with "nearest"), but the projection usually stops
+            1.45 s with "vertices", 0.53 s with "nearest"), but the projection usually stops
             at this limit, not at an optimum; the benchmarks use 1000 (on one held-out
             handshake the best optimum improved by 117 nats from 200 to 1000 iterations and
             the label went from wrong to right).
@@ -202,8 +202,8 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             joint optimum is not always the right label: on the built-in handshakes "levels"
             read two sad trials as neutral (91.7%); "vertices" compares every
             level at its own optimum (24/24). On generated clips between two emotions (demo
-            model, s in {0, .25, .5, .75, 1}) its mean absolute error in s is 0.030
-            (neutral to happy) and 0.065 (sad to angry), against 0.054 and 0.45 with
+            model, s in {0, .25, .5, .75, 1}) its mean absolute error in s is 0.027
+            (neutral to happy) and 0.032 (sad to angry), against 0.044 and 0.46 with
             "nearest". With "vertices" ``info`` holds ``level_log_evidence``,
             ``level_probabilities`` (the plain evidence's posterior; ``probabilities`` adds
             the recording effect and the out-of-distribution shrinkage) and the Laplace
