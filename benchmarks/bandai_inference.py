@@ -62,10 +62,12 @@ WALKS = ("walk", "walk-back", "walk-left", "walk-right")
 # features of every frame; "angles" (joint angles, with rest frames) is the ablation, run with
 # --pose-space angles
 FULL = {"contents": WALKS, "fps": 15.0, "model_frames": 60, "max_iter": 300, "refit_iter": 100,
-        "n_steps": 400, "emotion_starts": "vertices", "projection_iter": 1000,
+        "n_steps": 400, "emotion_starts": "vertices", "level_starts": 1, "start_jitter": 0.02,
+        "projection_iter": 1000,
         "canonical_side": True, "pose_space": "affective", "calibrate": True}
 QUICK = {"contents": WALKS[2:], "fps": 7.5, "model_frames": 20, "max_iter": 30,
-         "refit_iter": 10, "n_steps": 60, "emotion_starts": "vertices", "projection_iter": 200,
+         "refit_iter": 10, "n_steps": 60, "emotion_starts": "vertices", "level_starts": 1,
+         "start_jitter": 0.02, "projection_iter": 200,
          "canonical_side": True, "pose_space": "affective", "calibrate": True}
 # every content of the shared clips (walks, run, dash, bow, bye, byebye, guide): one model whose
 # style factor is the emotion alone, the contents pooled in its latent spaces (a held-out clip's
@@ -73,7 +75,8 @@ QUICK = {"contents": WALKS[2:], "fps": 7.5, "model_frames": 20, "max_iter": 30,
 # N = 1,600 frames; the labels' calibration only (the coordinates' second inference per fold
 # is the walks' run)
 ALL = {"contents": None, "fps": 10.0, "model_frames": 40, "max_iter": 300, "refit_iter": 100,
-       "n_steps": 200, "emotion_starts": "vertices", "projection_iter": 1000,
+       "n_steps": 200, "emotion_starts": "vertices", "level_starts": 1, "start_jitter": 0.02,
+       "projection_iter": 1000,
        "canonical_side": True, "pose_space": "affective", "calibrate": "labels"}
 
 
@@ -160,6 +163,8 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
     res = leave_one_out(clips, full, refit_iter=cfg["refit_iter"], n_steps=cfg["n_steps"],
                         calibrate=cfg["calibrate"],
                         infer_kwargs={"emotion_starts": cfg["emotion_starts"],
+                                      "level_starts": cfg["level_starts"],
+                                      "start_jitter": cfg["start_jitter"],
                                       "max_iter": cfg["projection_iter"]})
     foreign = None if all_contents else _foreign_actions(full, root, cfg, res, quick)
     total = time.perf_counter() - t0

@@ -92,6 +92,13 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     assert "--level-starts > 1 needs" in one_line_error(
         capsys, ["infer", str(model), *clips, "--level-starts", "2", "--emotion-starts",
                  "nearest"])
+    assert out["start_jitter"] == 0.02  # the default
+    assert main(["infer", str(model), *clips, "--json", "--start-jitter", "0"]) == 0
+    assert json.loads(capsys.readouterr().out)["start_jitter"] == 0.0
+    assert "--start-jitter" in one_line_error(
+        capsys, ["infer", str(model), *clips, "--start-jitter", "-1"])
+    assert "--level-starts > 1 needs --start-jitter > 0" in one_line_error(
+        capsys, ["infer", str(model), *clips, "--level-starts", "2", "--start-jitter", "0"])
 
 
 @pytest.mark.slow

@@ -770,9 +770,9 @@ def test_inference_with_the_seen_cells_follows_the_same_path(handshake_model, ha
 
 
 def test_level_starts_keep_each_levels_best_optimum(tiny_model, tiny_data):
-    """level_starts=3 projects each level from its nearest-frame start (the level_starts=1
-    projection, reproduced) and two jittered copies, and keeps the best optimum: its
-    objective is the smallest of the three and its evidence is that start's."""
+    """level_starts=3 projects each level from three jittered copies of its nearest-frame
+    start (the first is the level_starts=1 projection, reproduced) and keeps the best optimum:
+    its objective is the smallest of the three and its evidence is that start's."""
     trial = tiny_data[tiny_data.labels("emotion").index("sad")]
     kw = dict(n_steps=30, latent_uncertainty=False, seed=4)
     one = bm.infer_emotion(tiny_model, trial, **kw)
@@ -797,12 +797,42 @@ def test_level_starts_keep_each_levels_best_optimum(tiny_model, tiny_data):
             bm.infer_emotion(tiny_model, trial, level_starts=bad)
     with pytest.raises(bm.BayesmotionError, match="level_starts > 1 needs"):
         bm.infer_emotion(tiny_model, trial, level_starts=2, emotion_starts="nearest")
+    for bad in (-0.1, np.nan, np.inf, True, "0.02", None):
+        with pytest.raises(bm.BayesmotionError, match="start_jitter"):
+            bm.infer_emotion(tiny_model, trial, start_jitter=bad)
+    with pytest.raises(bm.BayesmotionError, match="level_starts > 1 needs start_jitter > 0"):
+        bm.infer_emotion(tiny_model, trial, level_starts=2, start_jitter=0)
     # checked before any fold is refitted
     from bayesmotion.evaluation.evaluate import leave_one_out
 
     with pytest.raises(bm.BayesmotionError, match="level_starts > 1 needs"):
         leave_one_out(tiny_data, tiny_model, baselines=False,
                       infer_kwargs={"level_starts": 2, "emotion_starts": "nearest"})
+
+
+def test_start_jitter_sets_where_each_level_projection_starts(tiny_model, tiny_data):
+    """start_jitter=0 projects every level from the nearest training frames' latents exactly;
+    the default starts from a jittered copy; a larger jitter moves the starts further, so the
+    optima differ (the clip density is multimodal in the latents) and ``info`` says which ran."""
+    trial = tiny_data[tiny_data.labels("emotion").index("sad")]
+    kw = dict(n_steps=30, latent_uncertainty=False, seed=4)
+    runs = {sd: bm.infer_emotion(tiny_model, trial, start_jitter=sd, **kw)
+            for sd in (0.0, 0.02, 0.1)}
+    assert [r.info["start_jitter"] for r in runs.values()] == [0.0, 0.02, 0.1]
+    default = bm.infer_emotion(tiny_model, trial, **kw)
+    assert default.info["start_jitter"] == 0.02
+    assert default.info["level_objectives"] == runs[0.02].info["level_objectives"]
+    obj = {sd: np.array(r.info["level_objectives"]) for sd, r in runs.items()}
+    assert not np.allclose(obj[0.0], obj[0.02], rtol=1e-9, atol=0)
+    assert not np.allclose(obj[0.02], obj[0.1], rtol=1e-9, atol=0)
+    # the unjittered start is deterministic: a different seed projects from the same point
+    again = bm.infer_emotion(tiny_model, trial, start_jitter=0.0, **{**kw, "seed": 5})
+    np.testing.assert_allclose(again.info["level_objectives"], obj[0.0], rtol=1e-12)
+    # a jittered start follows the seed
+    other = bm.infer_emotion(tiny_model, trial, **{**kw, "seed": 5})
+    assert not np.allclose(other.info["level_objectives"], obj[0.02], rtol=1e-9, atol=0)
+    nearest = bm.infer_emotion(tiny_model, trial, emotion_starts="nearest", **kw)
+    assert nearest.info["start_jitter"] == 0.0  # no level projections to jitter
 
 
 def test_the_seen_predictor_restricts_each_layer_by_its_own_factors():

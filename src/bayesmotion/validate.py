@@ -405,9 +405,12 @@ def check_infer_args(seed_value, n_walkers, n_steps, n_draws, couple, styles, pr
                                    f"{_short(prior)}")
 
 
-def check_projection_starts(emotion_starts, level_starts, flag: str = "level_starts") -> None:
-    """``infer_emotion``'s ``emotion_starts`` and ``level_starts`` (``flag``: how the caller
-    names the latter, e.g. ``--level-starts``), checked before any work is started."""
+def check_projection_starts(emotion_starts, level_starts, start_jitter,
+                            flag: str = "level_starts", jitter_flag: str = "start_jitter"
+                            ) -> None:
+    """``infer_emotion``'s ``emotion_starts``, ``level_starts`` and ``start_jitter`` (``flag``,
+    ``jitter_flag``: how the caller names the latter two, e.g. ``--level-starts``), checked
+    before any work is started."""
     if emotion_starts not in ("nearest", "levels", "vertices"):
         raise BayesmotionError(f"emotion_starts must be 'nearest', 'levels' or 'vertices', "
                                f"got {emotion_starts!r}")
@@ -418,6 +421,14 @@ def check_projection_starts(emotion_starts, level_starts, flag: str = "level_sta
     if level_starts > 1 and emotion_starts != "vertices":
         raise BayesmotionError(f"{flag} > 1 needs emotion_starts='vertices' (one projection "
                                f"per level), got {emotion_starts!r}")
+    if _is_bool(start_jitter) or not isinstance(start_jitter, numbers.Real) \
+            or not np.isfinite(start_jitter) or start_jitter < 0:
+        raise BayesmotionError(f"{jitter_flag} (sd of the jitter of each level projection's "
+                               f"start, latent units) must be a finite number >= 0, got "
+                               f"{start_jitter!r}")
+    if level_starts > 1 and start_jitter == 0:
+        raise BayesmotionError(f"{flag} > 1 needs {jitter_flag} > 0: unjittered starts are "
+                               f"all the same point")
 
 
 def check_infer_memory(clip, fps: float, n_train_frames: int, n_layers: int, n_walkers: int,

@@ -48,6 +48,7 @@ from bayesmotion.emotion.batch import infer_many
 from bayesmotion.emotion.evidence import calibrate_evidence
 from bayesmotion.emotion.infer import infer_emotion
 from bayesmotion.emotion.ood import OutOfDistributionWarning
+from bayesmotion.emotion.projection import START_JITTER
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.evaluation.evaluate import format_confusion, leave_one_out
 from bayesmotion.inference.diagnostics import convergence
@@ -161,9 +162,13 @@ def _parser() -> argparse.ArgumentParser:
                         "'levels': that start and one from each emotion level's frames, the "
                         "best optimum kept")
     i.add_argument("--level-starts", type=int, default=1, metavar="K",
-                   help="with 'vertices': projections per emotion level, the nearest-frame "
-                        "start and K-1 jittered copies, the best kept (default 1; 3 or more "
-                        "for real recordings; each start adds a projection per level)")
+                   help="with 'vertices': projections per emotion level from jittered copies "
+                        "of the nearest-frame start, the best kept (default 1; each start "
+                        "adds a projection per level)")
+    i.add_argument("--start-jitter", type=float, default=START_JITTER, metavar="SD",
+                   help=f"with 'vertices': sd of the jitter of each level projection's start "
+                        f"in latent units (default {START_JITTER:g}; 0: the nearest training "
+                        f"frames' latents exactly, with --level-starts 1)")
     i.add_argument("--workers", type=int, default=2,
                    help="with a folder: processes of the local Dask cluster (default 2)")
     i.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -188,6 +193,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="projection starts of every inference (see 'infer')")
     e.add_argument("--level-starts", type=int, default=1, metavar="K",
                    help="projections per emotion level of every inference (see 'infer')")
+    e.add_argument("--start-jitter", type=float, default=START_JITTER, metavar="SD",
+                   help="jitter of every inference's level projection starts (see 'infer')")
     e.add_argument("--json", default=None, help="write the result to this JSON file")
     v = add("view", "an interactive 3-D viewer page of motion files")
     v.add_argument("files", nargs="+",
@@ -348,7 +355,8 @@ def _cmd_view(a):
 
 def _cmd_infer(a):
     validate.seed(a.seed, "--seed")
-    validate.check_projection_starts(a.emotion_starts, a.level_starts, "--level-starts")
+    validate.check_projection_starts(a.emotion_starts, a.level_starts, a.start_jitter,
+                                     "--level-starts", "--start-jitter")
     if len(a.clips) == 1 and Path(a.clips[0]).is_dir():
         return _infer_folder(a)
     for c in a.clips:
@@ -358,7 +366,8 @@ def _cmd_infer(a):
         warnings.simplefilter("always", OutOfDistributionWarning)
         ep = infer_emotion(m, a.clips if len(a.clips) > 1 else a.clips[0], couple=a.couple,
                            seed=a.seed, likelihood_power=a.likelihood_power,
-                           emotion_starts=a.emotion_starts, level_starts=a.level_starts)
+                           emotion_starts=a.emotion_starts, level_starts=a.level_starts,
+                      start_jitter=a.start_jitter)
     for w in caught:  # the flag is part of the answer: one line on stderr, and in the JSON
         if issubclass(w.category, OutOfDistributionWarning):
             print(f"warning: {w.message}", file=sys.stderr)
@@ -373,6 +382,7 @@ def _cmd_infer(a):
                           "likelihood_power": ep.info["likelihood_power"],
                           "emotion_starts": ep.info["emotion_starts"],
                           "level_starts": ep.info["level_starts"],
+                          "start_jitter": ep.info["start_jitter"],
                           "map_objective": ep.info["map_objective"],
                           "out_of_distribution": ep.out_of_distribution,
                           "ood_score": ep.info["ood"]["score"],
@@ -391,7 +401,8 @@ def _infer_folder(a):
     table = validate.output_file(a.table if a.table else folder / "emotions.csv", "--table")
     rows = infer_many(a.model, folder, table, workers=a.workers, scheduler=a.scheduler,
                       seed=a.seed, couple=a.couple, likelihood_power=a.likelihood_power,
-                      emotion_starts=a.emotion_starts, level_starts=a.level_starts)
+                      emotion_starts=a.emotion_starts, level_starts=a.level_starts,
+                      start_jitter=a.start_jitter)
     errors = [r for r in rows if r["error"]]
     flagged = sum(str(r["out_of_distribution"]) == "True" for r in rows)
     print(f"wrote {table}: {len(rows)} clips, {len(errors)} failed, {flagged} out of "
@@ -432,7 +443,8 @@ def _check_fits(m, ds, model_path, data) -> None:
 
 def _cmd_evaluate(a):
     validate.integer(a.refit_iter, "--refit-iter", low=1)
-    validate.check_projection_starts(a.emotion_starts, a.level_starts, "--level-starts")
+    validate.check_projection_starts(a.emotion_starts, a.level_starts, a.start_jitter,
+                                     "--level-starts", "--start-jitter")
     if a.json is not None:
         validate.output_file(a.json, "--json")
     if a.save_calibrated is not None:
@@ -451,7 +463,8 @@ def _cmd_evaluate(a):
                           f"refitting {N} frames")
     res = leave_one_out(ds, m, refit_iter=a.refit_iter, calibrate=a.calibrate,
                         infer_kwargs={"emotion_starts": a.emotion_starts,
-                                      "level_starts": a.level_starts})
+                                      "level_starts": a.level_starts,
+                                      "start_jitter": a.start_jitter})
     print(format_confusion(res))
     hpd = lambda r: "" if r.get("hpd_coverage") is None else \
         f"highest-density region {r['hpd_coverage']:.2f}, "

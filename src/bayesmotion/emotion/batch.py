@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from bayesmotion._config import release_compiled_programs
+from bayesmotion.emotion.projection import START_JITTER
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.distributed import check_workers, dask_client, model_bytes, worker_model
 from bayesmotion.validate import check_projection_starts
@@ -218,7 +219,8 @@ def infer_many(model, clips, out=None, *, client=None, workers: int = 2,
     from tqdm.auto import tqdm
 
     check_projection_starts(infer_kwargs.get("emotion_starts", "vertices"),
-                            infer_kwargs.get("level_starts", 1))
+                            infer_kwargs.get("level_starts", 1),
+                            infer_kwargs.get("start_jitter", START_JITTER))
     data = model_bytes(model)
     fitted = worker_model(data)
     named = _named(clips, fitted.n_actors)

@@ -57,6 +57,7 @@ from bayesmotion.emotion.ood import (
     worst_statistic,
 )
 from bayesmotion.emotion.projection import (
+    START_JITTER,
     STATIC_ARGS,
     diag_hessian,
     minimize_scaled,
@@ -161,6 +162,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                   n_draws: int = 4, max_iter: int = 200, latent_uncertainty: bool = True,
                   likelihood_power: float = 1.0,
                   emotion_starts: str = "vertices", level_starts: int = 1,
+                  start_jitter: float = START_JITTER,
                   effective_frames: float | None = None) -> EmotionPosterior:
     """Posterior over the emotion coordinates of an observed clip.
 
@@ -208,17 +210,17 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             ``level_probabilities`` (the plain evidence's posterior; ``probabilities`` adds
             the recording effect and the out-of-distribution shrinkage) and the Laplace
             details per level.
-        level_starts: projections per emotion level (``emotion_starts="vertices"``): the
-            nearest-frame start and ``level_starts - 1`` copies of it jittered by N(0, 0.02^2)
-            in every latent coordinate; each level keeps its best optimum, and ``info``'s
-            ``level_laplace`` holds every start's objective and evidence. The clip density is
-            multimodal in the latents, so one start gives a level a noisy evidence: on 16
-            held-out Bandai walks one level's evidence moved by a median 164 nats between
-            starts, and the plain-evidence accuracy was 75% with one start, 90% on average
-            (81-94%) with two, 93% with three and 93.8% with four to six
-            (``benchmarks/results/projection_starts.json``). Each start adds a projection
-            and a Hessian per level (a projection per couple level when the couple is
-            inferred).
+        level_starts: projections per emotion level (``emotion_starts="vertices"``), each
+            from the level's nearest-frame start jittered by ``start_jitter``; each level keeps
+            its best optimum, and ``info``'s ``level_laplace`` holds every start's objective
+            and evidence. Each start adds a projection and a Hessian per level.
+        start_jitter: sd of the N(0, sd^2) jitter added to every latent coordinate of a level
+            projection's start (``emotion_starts="vertices"``); 0 starts exactly on the
+            nearest training frames' latents (then ``level_starts`` must be 1). The clip
+            density is multimodal in the latents: on 16 held-out Bandai walks one level's
+            evidence moved by a median 164 nats between starts, and the plain-evidence
+            accuracy was 75% from the unjittered start and 88.8% on average (87.5-93.8%) from
+            one jittered start (``benchmarks/results/projection_starts.json``).
         effective_frames: n_eff, how many of the clip's frames count as independent evidence
             for its label (:mod:`bayesmotion.emotion.evidence`): the label probabilities
             raise the levels' evidence to the power n_eff / (n_eff + T)
@@ -234,7 +236,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
     fitted = model.model if isinstance(model, Posterior) else model
     check_infer_memory(clip, fitted.fps, fitted.predictor_rows, fitted.n_actors + 2,
                        n_walkers, n_steps)
-    check_projection_starts(emotion_starts, level_starts)
+    check_projection_starts(emotion_starts, level_starts, start_jitter)
     if method != "emcee":
         raise BayesmotionError(f"method must be 'emcee', got {method!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
@@ -252,12 +254,12 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
         parts = [_infer_one(model.model, model.predictor(int(i)), clip, frames, given, prior,
                             seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
                             latent_uncertainty and k == 0, likelihood_power, emotion_starts,
-                            n_eff, int(level_starts))
+                            n_eff, (int(level_starts), float(start_jitter)))
                  for k, i in enumerate(idx)]
         return pool_posteriors(parts)
     return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
                       n_steps, max_iter, latent_uncertainty, likelihood_power, emotion_starts,
-                      n_eff, int(level_starts))
+                      n_eff, (int(level_starts), float(start_jitter)))
 
 
 def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
@@ -276,7 +278,7 @@ def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
 
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
                latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices",
-               n_eff=(float("inf"), False), level_starts=1):
+               n_eff=(float("inf"), False), starts=(1, START_JITTER)):
     import emcee
 
     t0 = time.perf_counter()
@@ -321,8 +323,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     levels_info = {}
     if emotion_starts == "vertices":
         params, res, fits, levels_info = _vertex_choice(model, P, Ys, B, T, args, statics,
-                                                       max_iter, inferred, conc, level_starts,
-                                                       seed)
+                                                       max_iter, inferred, conc, starts, seed)
         # the chosen level's latents and the free styles together, from just inside its vertex:
         # the clip's emotion may lie between levels (an interpolated clip: mean absolute error
         # 0.03 over s in {0, .25, .5, .75, 1} on generated handshakes, 0.15 without this step)
@@ -388,7 +389,8 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
             "tau": tau, "likelihood_power": float(likelihood_power),
             "acceptance": float(np.mean(sampler.acceptance_fraction)),
             "map_objective": float(res.fun), "map_iterations": int(res.nit),
-            "emotion_starts": emotion_starts, "level_starts": level_starts, **levels_info,
+            "emotion_starts": emotion_starts, "level_starts": starts[0],
+            "start_jitter": starts[1] if emotion_starts == "vertices" else 0.0, **levels_info,
             "start_objectives": [float(r.fun) for _, r in fits],
             "n_samples": int(chain.shape[0] * chain.shape[1]),
             "ess": float(chain.shape[0] * chain.shape[1] / np.max(tau))}
@@ -469,14 +471,14 @@ def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:
 
 
 def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
-                   n_starts=1, seed=0):
+                   starts=(1, START_JITTER), seed=0):
     """The emotion level with the largest posterior probability under the Laplace evidence of
     each level (bayesmotion.emotion.projection.project_levels) and the prior probability that the
     level
     is the largest coordinate; its projection, with the free emotion set just inside its
     vertex (the style sampler starts from the styles' mode at these latents)."""
     out = project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
-                         n_starts, seed)
+                         starts[0], seed, starts[1])
     log_ev = np.array([o[2] for o in out])
     logp = log_ev + np.log(_largest_prior(conc["emotion"]))
     prob = np.exp(logp - logp.max())

@@ -37,8 +37,8 @@ from bayesmotion.optim import lbfgs
 
 ROUND_ITER = 100  # L-BFGS iterations between re-estimates of the diagonal scaling
 HVP_CHUNK = 64  # Hessian-vector products per vmapped batch
-# sd of the jitter of project_levels' further starts, in latent units (the latents' sd is
-# about 0.45; benchmarks/results/projection_starts.json measured this one value)
+# sd of the jitter of project_levels' starts, in latent units (the latents' sd is about 0.45;
+# benchmarks/results/projection_starts.json measured this one value)
 START_JITTER = 0.02
 STATIC_ARGS = ("int_factors", "dyn_factors", "init_var")
 
@@ -382,17 +382,18 @@ def _jittered(params: dict, sd: float, rng: np.random.Generator) -> dict:
 
 
 def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
-                   n_starts: int = 1, seed: int = 0):
+                   n_starts: int = 1, seed: int = 0, jitter: float = START_JITTER):
     """One projection per emotion level k with the emotion held at k's style vector, from the
     latents of the nearest frames of k's training trials; the other free styles (the couple,
     when not given) are projected with it. Each level's density drops the style cells it
-    cannot see (:func:`seen_predictor`). With ``n_starts`` > 1 each level is projected from
-    that start and ``n_starts - 1`` copies of it jittered by N(0, START_JITTER^2) in every
-    latent coordinate (seeded by ``seed`` and the level, so the starts of ``n_starts`` = k are
-    the first k of any larger ``n_starts``), and the best optimum is kept: the clip density is
-    multimodal in the latents. Returns per level: (params, scipy result, log evidence, info)
-    -- see :func:`laplace_log_evidence`; info adds every start's ``start_objectives`` and
-    ``start_log_evidence`` (start 0 the unjittered one)."""
+    cannot see (:func:`seen_predictor`). Each of the ``n_starts`` projections of a level
+    starts from a copy of that start jittered by N(0, ``jitter``^2) in every latent coordinate
+    (seeded by ``seed`` and the level, so the starts of ``n_starts`` = k are the first k of any
+    larger ``n_starts``; ``jitter=0``: the nearest frames' latents exactly, one start), and the
+    best optimum is kept: the clip density is multimodal in the latents, and exactly on the
+    training latents its optimiser stops in worse optima more often. Returns per level:
+    (params, scipy result, log evidence, info) -- see :func:`laplace_log_evidence`; info adds
+    every start's ``start_objectives`` and ``start_log_evidence``."""
     Pm, Yp, mask, fixed_j, conc_j = args
     others = [f for f in inferred if f != "emotion"]
     conc_o = {f: conc[f] for f in others}
@@ -404,8 +405,8 @@ def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
         Pk = seen_predictor(Pm, fixed_k, statics["int_factors"], statics["dyn_factors"])
         args_k = (Pk, Yp, mask, fixed_k, {f: conc_j[f] for f in others})
         best, objectives, evidences = None, [], []
-        for j in range(n_starts):
-            start = params if j == 0 else _jittered(params, START_JITTER, rng)
+        for _ in range(n_starts):
+            start = _jittered(params, jitter, rng) if jitter > 0 else params
             p, res = project(start, args_k, statics, max_iter, others, conc_o)
             log_ev, info = laplace_log_evidence(p, args_k, statics, T)
             objectives.append(float(res.fun))

@@ -33,6 +33,7 @@ from bayesmotion.emotion.evidence import (
 )
 from bayesmotion.emotion.infer import infer_emotion
 from bayesmotion.emotion.ood import OutOfDistributionWarning
+from bayesmotion.emotion.projection import START_JITTER
 from bayesmotion.emotion.result import label_set_size
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.evaluation.calibration import (
@@ -242,7 +243,8 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         raise BayesmotionError(f"infer_kwargs may not set {sorted(taken)}: leave_one_out sets "
                                f"them")
     check_projection_starts(infer_kwargs.get("emotion_starts", "vertices"),
-                            infer_kwargs.get("level_starts", 1))
+                            infer_kwargs.get("level_starts", 1),
+                            infer_kwargs.get("start_jitter", START_JITTER))
     if calibrate not in (True, False, "labels"):
         raise BayesmotionError(f"calibrate must be True, False or 'labels', got {calibrate!r}")
     if calibrate and len(dataset) < 3:
