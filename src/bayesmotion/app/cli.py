@@ -367,7 +367,7 @@ def _cmd_infer(a):
         ep = infer_emotion(m, a.clips if len(a.clips) > 1 else a.clips[0], couple=a.couple,
                            seed=a.seed, likelihood_power=a.likelihood_power,
                            emotion_starts=a.emotion_starts, level_starts=a.level_starts,
-                      start_jitter=a.start_jitter)
+                           start_jitter=a.start_jitter)
     for w in caught:  # the flag is part of the answer: one line on stderr, and in the JSON
         if issubclass(w.category, OutOfDistributionWarning):
             print(f"warning: {w.message}", file=sys.stderr)
