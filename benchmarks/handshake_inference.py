@@ -34,9 +34,11 @@ NAME = "handshake_inference"
 # their optima: on the c2_sad_0 fold the best start improved by 117 nats from 200 to 1000
 # iterations, and the label went from angry (P 0.86) to sad (P 0.96)
 FULL = {"fps": 10.0, "couples": None, "max_iter": 300, "refit_iter": 100, "n_steps": 150,
-        "emotion_starts": "vertices", "projection_iter": 1000}
+        "emotion_starts": "vertices", "level_starts": 1, "start_jitter": 0.02,
+        "projection_iter": 1000}
 QUICK = {"fps": 10.0, "couples": ["c1"], "max_iter": 30, "refit_iter": 10, "n_steps": 60,
-         "emotion_starts": "vertices", "projection_iter": 200}
+         "emotion_starts": "vertices", "level_starts": 1, "start_jitter": 0.02,
+         "projection_iter": 200}
 
 
 def _label_row(metric: str, cal: dict, note: str = "") -> dict:
@@ -77,6 +79,8 @@ def run(quick: bool) -> dict:
     t_fit = time.perf_counter() - t0
     res = leave_one_out(ds, full, refit_iter=cfg["refit_iter"], n_steps=cfg["n_steps"],
                         calibrate=True, infer_kwargs={"emotion_starts": cfg["emotion_starts"],
+                                                      "level_starts": cfg["level_starts"],
+                                                      "start_jitter": cfg["start_jitter"],
                                                       "max_iter": cfg["projection_iter"]})
     acc, cov, hpd, cal = res["accuracy"], res["coverage"], res["hpd_coverage"], res["calibrated"]
     rows = [
