@@ -835,6 +835,7 @@ def test_start_jitter_sets_where_each_level_projection_starts(tiny_model, tiny_d
     assert not np.allclose(other.info["level_objectives"], obj[0.02], rtol=1e-9, atol=0)
     nearest = bm.infer_emotion(tiny_model, trial, emotion_starts="nearest", **kw)
     assert nearest.info["start_jitter"] == 0.0  # no level projections to jitter
+    assert nearest.info["level_starts"] == 1
 
 
 def test_the_seen_predictor_restricts_each_layer_by_its_own_factors():

@@ -278,7 +278,7 @@ def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
 
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
                latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices",
-               n_eff=(float("inf"), False), starts=(1, START_JITTER)):
+               n_eff=(float("inf"), False), per_level=(1, START_JITTER)):
     import emcee
 
     t0 = time.perf_counter()
@@ -323,7 +323,8 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     levels_info = {}
     if emotion_starts == "vertices":
         params, res, fits, levels_info = _vertex_choice(model, P, Ys, B, T, args, statics,
-                                                       max_iter, inferred, conc, starts, seed)
+                                                       max_iter, inferred, conc, per_level,
+                                                       seed)
         # the chosen level's latents and the free styles together, from just inside its vertex:
         # the clip's emotion may lie between levels (an interpolated clip: mean absolute error
         # 0.03 over s in {0, .25, .5, .75, 1} on generated handshakes, 0.15 without this step)
@@ -389,8 +390,9 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
             "tau": tau, "likelihood_power": float(likelihood_power),
             "acceptance": float(np.mean(sampler.acceptance_fraction)),
             "map_objective": float(res.fun), "map_iterations": int(res.nit),
-            "emotion_starts": emotion_starts, "level_starts": starts[0],
-            "start_jitter": starts[1] if emotion_starts == "vertices" else 0.0, **levels_info,
+            "emotion_starts": emotion_starts, "level_starts": per_level[0],
+            "start_jitter": per_level[1] if emotion_starts == "vertices" else 0.0,
+            **levels_info,
             "start_objectives": [float(r.fun) for _, r in fits],
             "n_samples": int(chain.shape[0] * chain.shape[1]),
             "ess": float(chain.shape[0] * chain.shape[1] / np.max(tau))}
@@ -471,14 +473,14 @@ def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:
 
 
 def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
-                   starts=(1, START_JITTER), seed=0):
+                   per_level=(1, START_JITTER), seed=0):
     """The emotion level with the largest posterior probability under the Laplace evidence of
     each level (bayesmotion.emotion.projection.project_levels) and the prior probability that the
     level
     is the largest coordinate; its projection, with the free emotion set just inside its
     vertex (the style sampler starts from the styles' mode at these latents)."""
     out = project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
-                         starts[0], seed, starts[1])
+                         per_level[0], seed, per_level[1])
     log_ev = np.array([o[2] for o in out])
     logp = log_ev + np.log(_largest_prior(conc["emotion"]))
     prob = np.exp(logp - logp.max())
