@@ -85,20 +85,21 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     # the nearest-frame start is among the level starts: the best optimum is never worse
     assert many["map_objective"] <= near["map_objective"] + 1e-9
     assert out["level_starts"] == 1  # the default
-    assert main(["infer", str(model), *clips, "--json", "--level-starts", "2"]) == 0
+    assert main(["infer", str(model), *clips, "--json", "--level-starts", "2",
+                 "--start-jitter", "0.02"]) == 0
     assert json.loads(capsys.readouterr().out)["level_starts"] == 2
     assert "--level-starts" in one_line_error(
         capsys, ["infer", str(model), *clips, "--level-starts", "0"])
     assert "--level-starts > 1 needs" in one_line_error(
         capsys, ["infer", str(model), *clips, "--level-starts", "2", "--emotion-starts",
                  "nearest"])
-    assert out["start_jitter"] == 0.02  # the default
-    assert main(["infer", str(model), *clips, "--json", "--start-jitter", "0"]) == 0
-    assert json.loads(capsys.readouterr().out)["start_jitter"] == 0.0
+    assert out["start_jitter"] == 0.0  # the default
+    assert main(["infer", str(model), *clips, "--json", "--start-jitter", "0.02"]) == 0
+    assert json.loads(capsys.readouterr().out)["start_jitter"] == 0.02
     assert "--start-jitter" in one_line_error(
         capsys, ["infer", str(model), *clips, "--start-jitter", "-1"])
     assert "--level-starts > 1 needs --start-jitter > 0" in one_line_error(
-        capsys, ["infer", str(model), *clips, "--level-starts", "2", "--start-jitter", "0"])
+        capsys, ["infer", str(model), *clips, "--level-starts", "3"])
 
 
 @pytest.mark.slow

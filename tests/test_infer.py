@@ -743,9 +743,7 @@ def test_inference_with_the_seen_cells_follows_the_same_path(handshake_model, ha
     from bayesmotion.emotion.ood import OutOfDistributionWarning
 
     trial = handshake_data[9]
-    # both runs from the same unjittered starts: 20 iterations from a jittered one leave the
-    # clip out of distribution, which is not what this compares
-    kw = dict(couple=trial.labels["couple"], n_steps=20, seed=2, max_iter=20, start_jitter=0.0)
+    kw = dict(couple=trial.labels["couple"], n_steps=20, seed=2, max_iter=20)
     got = inf.infer_emotion(handshake_model, trial, **kw)
     for mod in (inf, proj):
         monkeypatch.setattr(mod, "seen_predictor", lambda P, fixed, i, d: P)
@@ -776,7 +774,7 @@ def test_level_starts_keep_each_levels_best_optimum(tiny_model, tiny_data):
     start (the first is the level_starts=1 projection, reproduced) and keeps the best optimum:
     its objective is the smallest of the three and its evidence is that start's."""
     trial = tiny_data[tiny_data.labels("emotion").index("sad")]
-    kw = dict(n_steps=30, latent_uncertainty=False, seed=4)
+    kw = dict(n_steps=30, latent_uncertainty=False, seed=4, start_jitter=0.02)
     one = bm.infer_emotion(tiny_model, trial, **kw)
     many = bm.infer_emotion(tiny_model, trial, level_starts=3, **kw)
     for k, (a, b) in enumerate(zip(one.info["level_laplace"], many.info["level_laplace"],
@@ -803,7 +801,7 @@ def test_level_starts_keep_each_levels_best_optimum(tiny_model, tiny_data):
         with pytest.raises(bm.BayesmotionError, match="start_jitter"):
             bm.infer_emotion(tiny_model, trial, start_jitter=bad)
     with pytest.raises(bm.BayesmotionError, match="level_starts > 1 needs start_jitter > 0"):
-        bm.infer_emotion(tiny_model, trial, level_starts=2, start_jitter=0)
+        bm.infer_emotion(tiny_model, trial, level_starts=2)  # the default: no jitter
     # checked before any fold is refitted
     from bayesmotion.evaluation.evaluate import leave_one_out
 
@@ -813,8 +811,8 @@ def test_level_starts_keep_each_levels_best_optimum(tiny_model, tiny_data):
 
 
 def test_start_jitter_sets_where_each_level_projection_starts(tiny_model, tiny_data):
-    """start_jitter=0 projects every level from the nearest training frames' latents exactly;
-    the default starts from a jittered copy; a larger jitter moves the starts further, so the
+    """start_jitter=0, the default, projects every level from the nearest training frames'
+    latents exactly; a jitter starts from a jittered copy, a larger one further away, so the
     optima differ (the clip density is multimodal in the latents) and ``info`` says which ran."""
     trial = tiny_data[tiny_data.labels("emotion").index("sad")]
     kw = dict(n_steps=30, latent_uncertainty=False, seed=4)
@@ -822,8 +820,8 @@ def test_start_jitter_sets_where_each_level_projection_starts(tiny_model, tiny_d
             for sd in (0.0, 0.02, 0.1)}
     assert [r.info["start_jitter"] for r in runs.values()] == [0.0, 0.02, 0.1]
     default = bm.infer_emotion(tiny_model, trial, **kw)
-    assert default.info["start_jitter"] == 0.02
-    assert default.info["level_objectives"] == runs[0.02].info["level_objectives"]
+    assert default.info["start_jitter"] == 0.0
+    assert default.info["level_objectives"] == runs[0.0].info["level_objectives"]
     obj = {sd: np.array(r.info["level_objectives"]) for sd, r in runs.items()}
     assert not np.allclose(obj[0.0], obj[0.02], rtol=1e-9, atol=0)
     assert not np.allclose(obj[0.02], obj[0.1], rtol=1e-9, atol=0)
@@ -831,7 +829,7 @@ def test_start_jitter_sets_where_each_level_projection_starts(tiny_model, tiny_d
     again = bm.infer_emotion(tiny_model, trial, start_jitter=0.0, **{**kw, "seed": 5})
     np.testing.assert_allclose(again.info["level_objectives"], obj[0.0], rtol=1e-12)
     # a jittered start follows the seed
-    other = bm.infer_emotion(tiny_model, trial, **{**kw, "seed": 5})
+    other = bm.infer_emotion(tiny_model, trial, start_jitter=0.02, **{**kw, "seed": 5})
     assert not np.allclose(other.info["level_objectives"], obj[0.02], rtol=1e-9, atol=0)
     nearest = bm.infer_emotion(tiny_model, trial, emotion_starts="nearest", **kw)
     assert nearest.info["start_jitter"] == 0.0  # no level projections to jitter

@@ -427,8 +427,8 @@ def check_projection_starts(emotion_starts, level_starts, start_jitter,
                                f"start, latent units) must be a finite number >= 0, got "
                                f"{start_jitter!r}")
     if level_starts > 1 and start_jitter == 0:
-        raise BayesmotionError(f"{flag} > 1 needs {jitter_flag} > 0: unjittered starts are "
-                               f"all the same point")
+        raise BayesmotionError(f"{flag} > 1 needs {jitter_flag} > 0 (e.g. 0.02): unjittered "
+                               f"starts are all the same point")
 
 
 def check_infer_memory(clip, fps: float, n_train_frames: int, n_layers: int, n_walkers: int,

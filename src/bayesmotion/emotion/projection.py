@@ -37,9 +37,10 @@ from bayesmotion.optim import lbfgs
 
 ROUND_ITER = 100  # L-BFGS iterations between re-estimates of the diagonal scaling
 HVP_CHUNK = 64  # Hessian-vector products per vmapped batch
-# sd of the jitter of project_levels' starts, in latent units (the latents' sd is about 0.45;
-# benchmarks/results/projection_starts.json measured this one value)
-START_JITTER = 0.02
+# default sd of the jitter of project_levels' starts, in latent units: none, the nearest-frame
+# latents exactly (the latents' sd is about 0.45; benchmarks/results/projection_starts.json
+# measured jittered starts at 0.02)
+START_JITTER = 0.0
 STATIC_ARGS = ("int_factors", "dyn_factors", "init_var")
 
 
