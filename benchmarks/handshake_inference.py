@@ -34,10 +34,10 @@ NAME = "handshake_inference"
 # their optima: on the c2_sad_0 fold the best start improved by 117 nats from 200 to 1000
 # iterations, and the label went from angry (P 0.86) to sad (P 0.96)
 FULL = {"fps": 10.0, "couples": None, "max_iter": 300, "refit_iter": 100, "n_steps": 150,
-        "emotion_starts": "vertices", "level_starts": 1, "start_jitter": 0.02,
+        "emotion_starts": "vertices", "level_starts": 1, "start_jitter": 0.0,
         "projection_iter": 1000}
 QUICK = {"fps": 10.0, "couples": ["c1"], "max_iter": 30, "refit_iter": 10, "n_steps": 60,
-         "emotion_starts": "vertices", "level_starts": 1, "start_jitter": 0.02,
+         "emotion_starts": "vertices", "level_starts": 1, "start_jitter": 0.0,
          "projection_iter": 200}
 
 
