@@ -391,8 +391,7 @@ def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
     starts from a copy of that start jittered by N(0, ``jitter``^2) in every latent coordinate
     (seeded by ``seed`` and the level, so the starts of ``n_starts`` = k are the first k of any
     larger ``n_starts``; ``jitter=0``: the nearest frames' latents exactly, one start), and the
-    best optimum is kept: the clip density is multimodal in the latents, and exactly on the
-    training latents its optimiser stops in worse optima more often. Returns per level:
+    best optimum is kept: the clip density is multimodal in the latents. Returns per level:
     (params, scipy result, log evidence, info) -- see :func:`laplace_log_evidence`; info adds
     every start's ``start_objectives`` and ``start_log_evidence``."""
     Pm, Yp, mask, fixed_j, conc_j = args
