@@ -29,10 +29,11 @@ The JSON goes to ``results/bandai_inference.json`` (``results/bandai_inference_a
 ``results/bandai_inference_jittered.json``).
 
 Current result (``results/bandai_inference.json``, full settings): ``["result"]["accuracy"]``
-0.875 (14/16), one of them an abstention named by the run's tie rule (docs: Emotion inference);
-ECE 0.12 plain, 0.24 with the recording effect (median n_eff 0.89 frames); 90% label sets
-cover 94%; no wrong answer with P >= 0.99; affective features 0.75 (ECE 0.16), relative
-strength 0.8125; 58% of the other actions flagged, their answers' mean entropy 1.26 nats.
+0.8125 (13/16), one of the wrong walks out of distribution (its probabilities the flat prior);
+ECE 0.15 plain, 0.20 with the recording effect (median n_eff 0.71 frames); plain 90% label
+sets cover 100%; no wrong answer with P >= 0.99; affective features 0.75 (ECE 0.16), relative
+strength 0.8125; 54% of the other actions flagged, their answers' mean entropy 1.28 nats;
+13.9 s per clip.
 All 40 clips (``results/bandai_inference_all.json``): 0.425 (17/40) against 0.525 for the
 affective features and 0.45 for relative strength; ECE 0.55 plain (28% wrong with
 P >= 0.99), 0.08 with the recording effect (90% label sets of 3.9 levels on average); a median
