@@ -191,6 +191,9 @@ def test_cli_evaluate_calibrates_and_saves_the_model(tmp_path, capsys):
     bm.HGPDM(latent_dim=3, interaction_dim=3).fit(data, max_iter=40, progress=False).save(
         tmp_path / "m.npz")
     capsys.readouterr()
+    # several level starts need a jitter: refused before any fold is refitted
+    assert main(["evaluate", str(tmp_path / "m.npz"), str(folder), "--level-starts", "2"]) != 0
+    assert "--level-starts > 1 needs --start-jitter > 0" in capsys.readouterr().err
     code = main(["evaluate", str(tmp_path / "m.npz"), str(folder), "--refit-iter", "5",
                  "--calibrate", "--save-calibrated", str(tmp_path / "c.npz")])
     out = capsys.readouterr().out

@@ -797,9 +797,11 @@ def test_level_starts_keep_each_levels_best_optimum(tiny_model, tiny_data):
             bm.infer_emotion(tiny_model, trial, level_starts=bad)
     with pytest.raises(bm.BayesmotionError, match="level_starts > 1 needs"):
         bm.infer_emotion(tiny_model, trial, level_starts=2, emotion_starts="nearest")
-    for bad in (-0.1, np.nan, np.inf, True, "0.02", None):
+    for bad in (-0.1, np.nan, np.inf, True, "0.02", None, 10**400):
         with pytest.raises(bm.BayesmotionError, match="start_jitter"):
             bm.infer_emotion(tiny_model, trial, start_jitter=bad)
+    with pytest.raises(bm.BayesmotionError, match="start_jitter > 0 needs emotion_starts"):
+        bm.infer_emotion(tiny_model, trial, start_jitter=0.02, emotion_starts="nearest")
     with pytest.raises(bm.BayesmotionError, match="level_starts > 1 needs start_jitter > 0"):
         bm.infer_emotion(tiny_model, trial, level_starts=2)  # the default: no jitter
     # checked before any fold is refitted
@@ -808,6 +810,8 @@ def test_level_starts_keep_each_levels_best_optimum(tiny_model, tiny_data):
     with pytest.raises(bm.BayesmotionError, match="level_starts > 1 needs"):
         leave_one_out(tiny_data, tiny_model, baselines=False,
                       infer_kwargs={"level_starts": 2, "emotion_starts": "nearest"})
+    with pytest.raises(bm.BayesmotionError, match="level_starts > 1 needs start_jitter > 0"):
+        leave_one_out(tiny_data, tiny_model, baselines=False, infer_kwargs={"level_starts": 2})
 
 
 def test_start_jitter_sets_where_each_level_projection_starts(tiny_model, tiny_data):

@@ -32,6 +32,14 @@ def clips(tmp_path_factory):
     return folder
 
 
+def test_projection_starts_are_checked_before_any_work(tiny_model, tmp_path):
+    """Several level starts without a jitter are refused before a cluster starts or a table is
+    written."""
+    with pytest.raises(BayesmotionError, match="level_starts > 1 needs start_jitter > 0"):
+        bm.infer_many(tiny_model, [tmp_path / "absent.bvh"], tmp_path / "t.csv", level_starts=2)
+    assert not (tmp_path / "t.csv").exists()
+
+
 def test_find_clips_groups_actor_files(tmp_path):
     for name in ("a_actor0", "a_actor1", "b_actor0", "b_actor1"):
         (tmp_path / f"{name}.bvh").write_text("")

@@ -421,11 +421,18 @@ def check_projection_starts(emotion_starts, level_starts, start_jitter,
     if level_starts > 1 and emotion_starts != "vertices":
         raise BayesmotionError(f"{flag} > 1 needs emotion_starts='vertices' (one projection "
                                f"per level), got {emotion_starts!r}")
+    try:
+        sd = float(start_jitter)
+    except (TypeError, ValueError, OverflowError):
+        sd = float("nan")
     if _is_bool(start_jitter) or not isinstance(start_jitter, numbers.Real) \
-            or not np.isfinite(start_jitter) or start_jitter < 0:
+            or not np.isfinite(sd) or sd < 0:
         raise BayesmotionError(f"{jitter_flag} (sd of the jitter of each level projection's "
                                f"start, latent units) must be a finite number >= 0, got "
                                f"{start_jitter!r}")
+    if start_jitter > 0 and emotion_starts != "vertices":
+        raise BayesmotionError(f"{jitter_flag} > 0 needs emotion_starts='vertices' (it jitters "
+                               f"the level projections' starts), got {emotion_starts!r}")
     if level_starts > 1 and start_jitter == 0:
         raise BayesmotionError(f"{flag} > 1 needs {jitter_flag} > 0 (e.g. 0.02): unjittered "
                                f"starts are all the same point")

@@ -259,12 +259,12 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
         parts = [_infer_one(model.model, model.predictor(int(i)), clip, frames, given, prior,
                             seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
                             latent_uncertainty and k == 0, likelihood_power, emotion_starts,
-                            n_eff, (int(level_starts), float(start_jitter)))
+                            n_eff, int(level_starts), float(start_jitter))
                  for k, i in enumerate(idx)]
         return pool_posteriors(parts)
     return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
                       n_steps, max_iter, latent_uncertainty, likelihood_power, emotion_starts,
-                      n_eff, (int(level_starts), float(start_jitter)))
+                      n_eff, int(level_starts), float(start_jitter))
 
 
 def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
@@ -283,7 +283,7 @@ def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
 
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
                latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices",
-               n_eff=(float("inf"), False), per_level=(1, START_JITTER)):
+               n_eff=(float("inf"), False), level_starts=1, start_jitter=START_JITTER):
     import emcee
 
     t0 = time.perf_counter()
@@ -328,8 +328,8 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     levels_info = {}
     if emotion_starts == "vertices":
         params, res, fits, levels_info = _vertex_choice(model, P, Ys, B, T, args, statics,
-                                                       max_iter, inferred, conc, per_level,
-                                                       seed)
+                                                       max_iter, inferred, conc, level_starts,
+                                                       seed, start_jitter)
         # the chosen level's latents and the free styles together, from just inside its vertex:
         # the clip's emotion may lie between levels (an interpolated clip: mean absolute error
         # 0.03 over s in {0, .25, .5, .75, 1} on generated handshakes, 0.15 without this step)
@@ -395,9 +395,8 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
             "tau": tau, "likelihood_power": float(likelihood_power),
             "acceptance": float(np.mean(sampler.acceptance_fraction)),
             "map_objective": float(res.fun), "map_iterations": int(res.nit),
-            "emotion_starts": emotion_starts, "level_starts": per_level[0],
-            "start_jitter": per_level[1] if emotion_starts == "vertices" else 0.0,
-            **levels_info,
+            "emotion_starts": emotion_starts, "level_starts": level_starts,
+            "start_jitter": start_jitter, **levels_info,
             "start_objectives": [float(r.fun) for _, r in fits],
             "n_samples": int(chain.shape[0] * chain.shape[1]),
             "ess": float(chain.shape[0] * chain.shape[1] / np.max(tau))}
@@ -478,14 +477,14 @@ def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:
 
 
 def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
-                   per_level=(1, START_JITTER), seed=0):
+                   n_starts=1, seed=0, jitter=START_JITTER):
     """The emotion level with the largest posterior probability under the Laplace evidence of
     each level (bayesmotion.emotion.projection.project_levels) and the prior probability that the
     level
     is the largest coordinate; its projection, with the free emotion set just inside its
     vertex (the style sampler starts from the styles' mode at these latents)."""
     out = project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
-                         per_level[0], seed, per_level[1])
+                         n_starts, seed, jitter)
     log_ev = np.array([o[2] for o in out])
     logp = log_ev + np.log(_largest_prior(conc["emotion"]))
     prob = np.exp(logp - logp.max())
