@@ -123,14 +123,14 @@ def summarize(rows: list, levels: list, S: int) -> dict:
     jittered = range(1, S)
     best = best_of(range(S))
     unjittered, many = _answers(ev[..., 0], truth), _answers(best, truth)
-    # level_starts = k at start_jitter=0.02: k jittered starts, every such choice among
+    # level_starts = k at start_jitter=JITTER: k jittered starts, every such choice among
     # the S - 1 run here; and the same with the unjittered start added
     by_starts = [{"starts": k, **spread_of(itertools.combinations(jittered, k))}
                  for k in range(1, S)]
     with_unjittered = [{"starts": k, **spread_of((0, *c) for c in
                                                   itertools.combinations(jittered, k - 1))}
                        for k in range(1, S + 1)]
-    single = [{"start": j, "jitter": 0.0 if j == 0 else 0.02,
+    single = [{"start": j, "jitter": 0.0 if j == 0 else JITTER,
                **{key: v for key, v in _answers(ev[..., j], truth).items()
                   if key != "probabilities"}} for j in range(S)]
     beaten = (obj < obj[..., :1]).sum(2)  # jittered starts better than the unjittered one
@@ -164,7 +164,7 @@ def summarize(rows: list, levels: list, S: int) -> dict:
                  100 * unjittered["accuracy"], "%", "", None,
                  f"ECE {unjittered['ece']:.3f}; wrong with P >= 0.99: "
                  f"{100 * unjittered['confident_wrong']:.1f}%"),
-        headline("  plain-evidence accuracy, one jittered start (start_jitter=0.02)",
+        headline(f"  plain-evidence accuracy, one jittered start (start_jitter={JITTER:g})",
                  100 * one["accuracy"]["mean"], "%", "", None,
                  f"mean over the {S - 1} jittered starts, range "
                  f"{100 * one['accuracy']['min']:.1f}-{100 * one['accuracy']['max']:.1f}%; ECE "
@@ -179,7 +179,6 @@ def summarize(rows: list, levels: list, S: int) -> dict:
                  f"ECE {many['ece']:.3f}; best of the unjittered and k - 1 jittered: "
                  + "; ".join(f"{b['starts']}: {pct(b)}" for b in with_unjittered)),
         headline(f"  seconds per clip with {S} starts per level", out["seconds_per_clip"], "s",
-                 "", None, "median, inference only (two inferences: the unjittered start, "
-                 f"then {S - 1} jittered)"),
+                 "", None, "median, inference only"),
     ]
     return out
