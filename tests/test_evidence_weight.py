@@ -11,6 +11,7 @@ from bayesmotion.emotion.evidence import (
     evidence_power,
     level_posterior,
 )
+from bayesmotion.emotion.result import top_level
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.evaluation.calibration import label_calibration
 
@@ -221,3 +222,36 @@ def test_a_flat_answer_keeps_the_label_the_evidence_favours():
                           info={"probabilities_in_distribution": [0.1, 0.2, 0.7]},
                           label_probabilities=np.full(3, 1 / 3))
     assert ep.label == "c" and ep.label_set(0.9) == ("a", "b", "c")
+
+
+def test_stored_results_are_scored_as_answered():
+    """score_labels summarises a leave-one-out result from its rows: a clip shrunk to the flat
+    prior (weight 0) whose first level is the truth, but whose evidence (and so its reported
+    label) favours another, counts as wrong, plain and with the recording effect."""
+    from bayesmotion.evaluation.evaluate import score_labels
+
+    levels = ["a", "b", "c"]
+    rng = np.random.default_rng(0)
+    rows = []
+    for i in range(9):
+        t = i % 3
+        ev = rng.normal(0.0, 5.0, 3)
+        ev[t] += 20.0
+        rows.append({"true": levels[t], "level_log_evidence": ev.tolist(),
+                     "level_prior": [1 / 3] * 3, "in_distribution_weight": 1.0,
+                     "n_frames": 20})
+    rows[0]["level_log_evidence"] = [0.0, -5.0, 30.0]  # truth "a"; the evidence says "c"
+    rows[0]["in_distribution_weight"] = 0.0
+    for r in rows:
+        w = r["in_distribution_weight"]
+        p = w * level_posterior(r["level_log_evidence"], np.log(r["level_prior"]), 1.0) \
+            + (1 - w) * np.asarray(r["level_prior"])
+        r["probabilities"] = p.tolist()
+        r["pred"] = levels[top_level(p, r["level_log_evidence"])]
+    assert rows[0]["pred"] == "c"
+    res = {"levels": levels, "trials": rows, "credible_level": 0.9, "evidence": {}}
+    out = score_labels(res)
+    assert out["label_calibration"]["accuracy"] == pytest.approx(8 / 9)
+    assert rows[0]["evidence_calibrated"]["label_index"] == 2
+    assert out["evidence"]["label_calibration"]["accuracy"] == pytest.approx(8 / 9)
+    assert "evidence" not in score_labels({k: v for k, v in res.items() if k != "evidence"})

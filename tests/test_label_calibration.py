@@ -151,3 +151,34 @@ def test_label_calibration_can_leave_the_resampling_out():
     cal = label_calibration(P4, T4, n_draws=0)
     assert cal["ece_if_calibrated"] is None and cal["ece_p_value"] is None
     assert cal["ece"] == expected_calibration_error(P4, T4)
+
+
+def test_a_flat_answer_is_scored_as_the_label_it_reports():
+    # clip 0 is shrunk to the flat prior; its first tied level is the truth, but it answers
+    # level 2 (the one its evidence favoured): scored as answered it is wrong at P = 1/3
+    p = np.array([[1 / 3, 1 / 3, 1 / 3], [0.1, 0.8, 0.1]])
+    truth = np.array([0, 1])
+    first = label_calibration(p, truth, n_draws=0)
+    answered = label_calibration(p, truth, n_draws=0, labels=np.array([2, 1]))
+    assert first["accuracy"] == 1.0
+    assert answered["accuracy"] == 0.5
+    # bins: (1/3, wrong) and (0.8, right): |0 - 1/3| / 2 + |1 - 0.8| / 2
+    assert answered["ece"] == pytest.approx((1 / 3 + 0.2) / 2)
+    assert first["ece"] == pytest.approx((2 / 3 + 0.2) / 2)
+    assert [b["accuracy"] for b in reliability(p, truth, labels=[2, 1])] == [0.0, 1.0]
+    c = calibration_consistency(p, truth, n_draws=200, labels=np.array([2, 1]))
+    assert c["ece"] == pytest.approx(answered["ece"])
+    # the labels that equal the argmax change nothing
+    same = label_calibration(P4, T4, n_draws=0, labels=np.argmax(P4, 1))
+    assert same == label_calibration(P4, T4, n_draws=0)
+
+
+@pytest.mark.parametrize("labels, match", [
+    (np.array([1, 1, 0, 0]), "less probable level"),  # clip 0 answers its 0.1 level
+    (np.array([0, 0, 0]), r"\(4,\) level indices"),
+    (np.array([0, 2, 0, 0]), "level indices"),
+    (np.array([0.0, 0.0, 0.0, 0.0]), "level indices"),
+])
+def test_answers_that_are_not_top_levels_are_refused(labels, match):
+    with pytest.raises(BayesmotionError, match=match):
+        label_calibration(P4, T4, n_draws=0, labels=labels)

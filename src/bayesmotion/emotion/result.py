@@ -11,6 +11,17 @@ import numpy as np
 from bayesmotion.errors import BayesmotionError
 
 
+def top_level(probabilities, tie_break=None) -> int:
+    """The index of the most probable level; ties (an answer shrunk to a flat prior) go to the
+    tied level that ``tie_break`` (e.g. the in-distribution probabilities) favours, or to the
+    first when it is None."""
+    p = np.asarray(probabilities, dtype=np.float64)
+    if tie_break is None:
+        return int(np.argmax(p))
+    top = np.flatnonzero(p >= p.max() - 1e-12 * max(p.max(), 1e-300))
+    return int(top[np.argmax(np.asarray(tie_break, dtype=np.float64)[top])])
+
+
 @dataclass(eq=False)
 class EmotionPosterior:
     """Posterior over a clip's emotion coordinates (and couple style when it was inferred).
@@ -194,12 +205,8 @@ class EmotionPosterior:
     def label(self) -> str:
         """The most probable level; ties (an answer shrunk to a flat prior) go to the level the
         evidence favours (``info["probabilities_in_distribution"]``)."""
-        p = self.probabilities
-        inner = self.info.get("probabilities_in_distribution")
-        if inner is None:
-            return self.levels[int(np.argmax(p))]
-        top = np.flatnonzero(p >= p.max() - 1e-12 * max(p.max(), 1e-300))
-        return self.levels[int(top[np.argmax(np.asarray(inner)[top])])]
+        return self.levels[top_level(self.probabilities,
+                                     self.info.get("probabilities_in_distribution"))]
 
     @property
     def coordinate_entropy(self) -> float:

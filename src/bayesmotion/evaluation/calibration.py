@@ -195,12 +195,17 @@ def hpd_power_from_levels(levels, q: float = 0.9, etas=None) -> float:
     return float(ok.max())
 
 
-def reliability(probabilities, truth, n_bins: int = 10) -> list[dict]:
+def reliability(probabilities, truth, n_bins: int = 10, labels=None) -> list[dict]:
     """Reliability diagram of top-label probabilities (Guo et al. 2017): the answers binned by
-    their confidence (the largest probability) into ``n_bins`` equal-width bins on [0, 1].
+    their confidence (the probability of the answer) into ``n_bins`` equal-width bins on
+    [0, 1].
 
     Args:
         probabilities: (n, K) label probabilities of n clips. truth: (n,) true level indices.
+        n_bins: the number of equal-width bins.
+        labels: (n,) the level indices that were answered, each a most probable level (default
+            the first most probable; :attr:`EmotionPosterior.label` breaks ties by the
+            evidence, so an answer shrunk to a flat prior is scored as the label it reports).
     Returns:
         per non-empty bin ``{"lower", "upper", "count", "confidence"`` (mean),
         ``"accuracy"}``: a calibrated posterior has accuracy = confidence in every bin.
@@ -208,8 +213,9 @@ def reliability(probabilities, truth, n_bins: int = 10) -> list[dict]:
     p, t = _label_args(probabilities, truth)
     if int(n_bins) != n_bins or n_bins < 1:
         raise BayesmotionError(f"n_bins must be a positive integer, got {n_bins!r}")
-    conf = p.max(1)
-    right = np.argmax(p, 1) == t
+    a = _answers(p, labels)
+    conf = p[np.arange(p.shape[0]), a]
+    right = a == t
     edges = np.linspace(0.0, 1.0, int(n_bins) + 1)
     idx = _bin_index(conf, n_bins)
     return [{"lower": float(edges[b]), "upper": float(edges[b + 1]),
@@ -225,11 +231,11 @@ def _bin_index(conf, n_bins: int) -> np.ndarray:
     return np.minimum(np.searchsorted(edges, conf, side="right") - 1, int(n_bins) - 1)
 
 
-def expected_calibration_error(probabilities, truth, n_bins: int = 10) -> float:
+def expected_calibration_error(probabilities, truth, n_bins: int = 10, labels=None) -> float:
     """Top-label expected calibration error: sum over :func:`reliability` bins of
     (count / n) |accuracy - confidence|. 0 for a calibrated posterior; a posterior answering
-    P = 1 at accuracy 0.8 scores 0.2."""
-    return _ece_of(reliability(probabilities, truth, n_bins))
+    P = 1 at accuracy 0.8 scores 0.2. ``labels``: the answers given (:func:`reliability`)."""
+    return _ece_of(reliability(probabilities, truth, n_bins, labels))
 
 
 def _ece_of(bins) -> float:
@@ -239,7 +245,7 @@ def _ece_of(bins) -> float:
 
 
 def calibration_consistency(probabilities, truth, n_bins: int = 10, n_draws: int = 2000,
-                            level: float = 0.9, seed: int = 0) -> dict:
+                            level: float = 0.9, seed: int = 0, labels=None) -> dict:
     """What a calibrated posterior would show on these clips: consistency resampling (Broecker
     and Smith 2007), conditional on the answers given.
 
@@ -256,6 +262,7 @@ def calibration_consistency(probabilities, truth, n_bins: int = 10, n_draws: int
         n_draws: replicates.
         level: the central probability of the intervals.
         seed: seeds the replicates.
+        labels: the answers given (:func:`reliability`).
 
     Returns:
         ``ece`` (observed); ``ece_if_calibrated``: the replicates' ``mean`` and central
@@ -272,8 +279,8 @@ def calibration_consistency(probabilities, truth, n_bins: int = 10, n_draws: int
         raise BayesmotionError(f"n_draws must be a positive integer, got {n_draws!r}")
     if not 0 < level < 1:
         raise BayesmotionError(f"level must lie in (0, 1), got {level}")
-    bins = reliability(p, t, n_bins)
-    conf = p.max(1)
+    bins = reliability(p, t, n_bins, labels)
+    conf = p[np.arange(p.shape[0]), _answers(p, labels)]
     idx = _bin_index(conf, n_bins)
     rng = np.random.default_rng(seed)
     # each replicate's right answers per bin, drawn in chunks of about a million clips
@@ -305,8 +312,12 @@ def _bin_hits(right, idx, kept) -> np.ndarray:
 
 
 def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
-                      confident: float = 0.99, n_draws: int = 2000) -> dict:
+                      confident: float = 0.99, n_draws: int = 2000, labels=None) -> dict:
     """What users read off label probabilities, for n labelled clips.
+
+    ``labels``: the level indices that were answered (default the first most probable level;
+    see :func:`reliability`). Accuracy, ECE, the reliability bins and the confident wrong
+    answers score these answers.
 
     Returns a dict: ``accuracy``; ``ece`` and ``reliability`` (:func:`reliability`);
     ``label_set_coverage`` (the truth inside the smallest set of levels holding probability
@@ -324,22 +335,42 @@ def label_calibration(probabilities, truth, q: float = 0.9, n_bins: int = 10,
     order = np.argsort(-p, 1, kind="stable")
     size = np.array([label_set_size(row, q) for row in p])
     inside = np.array([t[i] in order[i, :size[i]] for i in range(n)])
-    right = np.argmax(p, 1) == t
+    a = _answers(p, labels)
+    right = a == t
     onehot = np.eye(K)[t]
-    consistency = (calibration_consistency(p, t, n_bins, n_draws) if n_draws
+    consistency = (calibration_consistency(p, t, n_bins, n_draws, labels=a) if n_draws
                    else {"ece_if_calibrated": None, "p_value": None})
     return {"n": n, "accuracy": float(right.mean()),
-            "ece": expected_calibration_error(p, t, n_bins),
-            "reliability": reliability(p, t, n_bins),
+            "ece": expected_calibration_error(p, t, n_bins, a),
+            "reliability": reliability(p, t, n_bins, a),
             "credible_level": q,
             "label_set_coverage": float(inside.mean()),
             "label_set_mean_size": float(size.mean()),
-            "confident_wrong": float(np.mean(~right & (p.max(1) >= confident))),
+            "confident_wrong": float(np.mean(~right & (p[np.arange(n), a] >= confident))),
             "confident_threshold": confident,
             "log_score": float(np.mean(np.log(np.maximum(p[np.arange(n), t], 1e-300)))),
             "brier": float(np.mean(np.sum((p - onehot) ** 2, 1))),
             "ece_if_calibrated": consistency["ece_if_calibrated"],
             "ece_p_value": consistency["p_value"]}
+
+
+def _answers(p: np.ndarray, labels) -> np.ndarray:
+    """The answered level of each clip: ``labels``, each checked to be a most probable level
+    of its row, or by default the first most probable level."""
+    if labels is None:
+        return np.argmax(p, 1)
+    a = np.asarray(labels)
+    if a.shape != (p.shape[0],) or a.dtype.kind not in "iu" \
+            or np.any((a < 0) | (a >= p.shape[1])):
+        raise BayesmotionError(f"labels must be ({p.shape[0]},) level indices in "
+                               f"[0, {p.shape[1]}), got {labels!r}")
+    a = a.astype(int)
+    top = p.max(1)
+    off = np.flatnonzero(p[np.arange(p.shape[0]), a] < top - 1e-9 * np.maximum(top, 1e-300))
+    if off.size:
+        raise BayesmotionError(f"labels must each be a most probable level of their row; "
+                               f"rows {off[:5].tolist()} answer a less probable level")
+    return a
 
 
 def _label_args(probabilities, truth) -> tuple[np.ndarray, np.ndarray]:

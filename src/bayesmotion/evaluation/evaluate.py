@@ -34,7 +34,7 @@ from bayesmotion.emotion.evidence import (
 from bayesmotion.emotion.infer import infer_emotion
 from bayesmotion.emotion.ood import OutOfDistributionWarning
 from bayesmotion.emotion.projection import START_JITTER
-from bayesmotion.emotion.result import label_set_size
+from bayesmotion.emotion.result import label_set_size, top_level
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.evaluation.calibration import (
     ETA_GRID,
@@ -125,8 +125,9 @@ def _evidence_calibrated(rows, truth_idx, q) -> dict:
     """Label probabilities with n_eff (the effective frames per recording,
     :mod:`bayesmotion.emotion.evidence`) cross-fitted: trial i's from the other trials' plain
     level evidence; each row gets ``evidence_calibrated`` {n_eff, probabilities,
-    label_set_size}. The other trials' evidence comes from fold models that saw trial i, the
-    usual bias of cross-fitting on leave-one-out folds.
+    label_set_size, label_index} (the answer, ties broken by the evidence as
+    :attr:`EmotionPosterior.label` does). The other trials' evidence comes from fold models
+    that saw trial i, the usual bias of cross-fitting on leave-one-out folds.
     Returns the calibrated label metrics (:func:`label_calibration`) and n_eff fitted on all
     trials (what :func:`bayesmotion.emotion.evidence.calibrate_evidence` stores)."""
     L = np.array([r["level_log_evidence"] for r in rows], dtype=np.float64)
@@ -134,7 +135,7 @@ def _evidence_calibrated(rows, truth_idx, q) -> dict:
     lp = np.log(np.array([r["level_prior"] for r in rows], dtype=np.float64))
     w = np.array([r["in_distribution_weight"] for r in rows], dtype=np.float64)
     everyone = np.arange(len(rows))
-    probs = []
+    probs, labels = [], []
     for i, r in enumerate(rows):
         keep = everyone != i
         n_eff = calibrate_effective_frames(L[keep], T[keep], truth_idx[keep], lp[keep],
@@ -142,13 +143,39 @@ def _evidence_calibrated(rows, truth_idx, q) -> dict:
         p_in = level_posterior(L[i], lp[i], evidence_power(T[i], n_eff))
         p = w[i] * p_in + (1 - w[i]) * np.exp(lp[i])
         probs.append(p)
+        labels.append(top_level(p, p_in))
         r["evidence_calibrated"] = {"n_eff": n_eff, "probabilities": p.tolist(),
-                                    "label_set_size": label_set_size(p, q)}
+                                    "label_set_size": label_set_size(p, q),
+                                    "label_index": labels[-1]}
     n_eff = np.array([r["evidence_calibrated"]["n_eff"] for r in rows])
-    return {"label_calibration": label_calibration(np.array(probs), truth_idx, q),
+    return {"label_calibration": label_calibration(np.array(probs), truth_idx, q,
+                                                   labels=np.array(labels)),
             "n_eff": {"median": float(np.median(n_eff)), "min": float(n_eff.min()),
                       "max": float(n_eff.max())},
             "n_eff_all_trials": calibrate_effective_frames(L, T, truth_idx, lp, w)["n_eff"]}
+
+
+def score_labels(result: dict, with_evidence: bool | None = None) -> dict:
+    """The label summaries of a :func:`leave_one_out` result from its per-trial rows:
+    ``label_calibration`` of the plain answers and, with ``with_evidence`` (default: when the
+    result has them), ``evidence`` (the recording effect, n_eff cross-fitted). Each clip is
+    scored as answered: an answer shrunk to a flat prior counts as the label it reports (the
+    level its evidence favours), not as the first tied level. A function of the stored rows, so
+    a stored result can be summarised again without refitting.
+
+    Returns:
+        ``{"label_calibration": ..., "evidence": ...}`` (the second only with the evidence).
+    """
+    rows, levels, q = result["trials"], list(result["levels"]), result["credible_level"]
+    truth_idx = np.array([levels.index(r["true"]) for r in rows])
+    answered = np.array([levels.index(r["pred"]) for r in rows])
+    out = {"label_calibration": label_calibration([r["probabilities"] for r in rows],
+                                                  truth_idx, q, labels=answered)}
+    if with_evidence is None:
+        with_evidence = "evidence" in result
+    if with_evidence:
+        out["evidence"] = _evidence_calibrated(rows, truth_idx, q)
+    return out
 
 
 def _baselines(dataset: MotionDataset, factor: str) -> tuple[dict, np.ndarray]:
@@ -317,11 +344,8 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         "refit_iter": refit_iter,
         "likelihood_power": float(infer_kwargs.get("likelihood_power", 1.0)),
     }
+    out.update(score_labels(out, with_evidence=bool(calibrate)))
     truth_idx = np.array([levels.index(t) for t in true])
-    out["label_calibration"] = label_calibration([r["probabilities"] for r in rows], truth_idx,
-                                                 q)
-    if calibrate:
-        out["evidence"] = _evidence_calibrated(rows, truth_idx, q)
     if calibrate is True:
         try:
             out["calibrated"] = _calibrated(rows, runs, levels, q, n_steps, seed, infer_kwargs)

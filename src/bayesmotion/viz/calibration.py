@@ -19,7 +19,7 @@ from bayesmotion.viz.plots import save_figure
 def plot_reliability(probabilities, truth, path: str | os.PathLike | None = None, *,
                      ax: Axes | None = None, n_bins: int = 10, n_draws: int = 2000,
                      level: float = 0.9, seed: int = 0, title: str | None = None,
-                     dpi: float = 100) -> Axes:
+                     dpi: float = 100, labels=None) -> Axes:
     """Reliability diagram: each bin's accuracy against its mean confidence, with the range a
     calibrated posterior's accuracy would take in that bin (its consistency bar, Broecker and
     Smith 2007, :func:`bayesmotion.evaluation.calibration.calibration_consistency`).
@@ -41,10 +41,12 @@ def plot_reliability(probabilities, truth, path: str | os.PathLike | None = None
         seed: of the draws.
         title: Axes title (default: the ECE line).
         dpi: resolution of the saved file.
+        labels: (n,) the answered level indices, each a most probable level (default the
+            first most probable; see :func:`~bayesmotion.evaluation.calibration.reliability`).
     Returns:
         the Axes.
     """
-    c = calibration_consistency(probabilities, truth, n_bins, n_draws, level, seed)
+    c = calibration_consistency(probabilities, truth, n_bins, n_draws, level, seed, labels)
     if ax is None:
         fig = Figure(figsize=(4.5, 4.5), dpi=dpi, layout="constrained")
         FigureCanvasAgg(fig)
