@@ -1,7 +1,8 @@
 """Emotion inference on real clips: leave-one-clip-out on the shared Bandai walks.
 
     python benchmarks/bandai_inference.py [--quick] [--root DIR] [--pose-space angles]
-                                          [--all-contents] [--start-jitter SD] [--rescore]
+                                          [--all-contents] [--start-jitter SD]
+                                          [--level-starts K] [--rescore]
 
 The one-actor H-GPDM (emotion in the interaction and dynamics layers) is MAP-fitted on the 16
 Bandai walk clips (walk, walk-back, walk-left, walk-right x neutral/happy/angry/sad; quick: the
@@ -23,10 +24,14 @@ Targets (issue: honest inference): accuracy >= 85% on the walks (>= 75% on all 4
 The label probabilities are reported plain (the levels' Laplace evidence, with the
 out-of-distribution shrinkage) and with the recording effect (``bayesmotion.emotion.evidence``,
 n_eff cross-fitted from the other folds). The walks' run then sends the other actions (run, dash,
-bow, bye, byebye, guide) through the walk model, calibrated on the folds (``foreign_actions``).
+bow, bye, byebye, guide) through the walk model, calibrated on the folds (``foreign_actions``),
+with the same projection starts.
 The JSON goes to ``results/bandai_inference.json`` (``results/bandai_inference_all.json``;
 ``--start-jitter SD``, each level projection started from jittered nearest-frame latents:
-``results/bandai_inference_jittered.json``).
+``results/bandai_inference_jittered.json``, whose other actions were read from unjittered
+starts; ``--level-starts K --start-jitter SD``, each level projected from its nearest-frame
+latents and K - 1 jittered copies: ``results/bandai_inference_startsK.json``, the jitter in its
+``settings``).
 
 Current result (``results/bandai_inference.json``, full settings): ``["result"]["accuracy"]``
 0.8125 (13/16), one of the wrong walks out of distribution (its probabilities the flat prior,
@@ -116,7 +121,8 @@ def _foreign_actions(full, root, cfg, res, quick: bool) -> dict:
             warnings.simplefilter("ignore", OutOfDistributionWarning)
             ep = infer_emotion(model, t.select(slice(0, cfg["model_frames"])),
                                n_steps=cfg["n_steps"], max_iter=cfg["projection_iter"],
-                               latent_uncertainty=False)
+                               level_starts=cfg["level_starts"],
+                               start_jitter=cfg["start_jitter"], latent_uncertainty=False)
         rows.append({"clip": t.name, "flagged": ep.out_of_distribution, "entropy": ep.entropy,
                      "probabilities": ep.probabilities.tolist(),
                      "in_distribution_weight": ep.info["in_distribution_weight"],
@@ -194,8 +200,16 @@ def _headlines(res: dict, foreign: dict | None, n_clips: int, all_contents: bool
     return rows
 
 
+def result_name(all_contents: bool = False, start_jitter: float = 0.0,
+                level_starts: int = 1) -> str:
+    """The result file's name for these options."""
+    return (NAME + ("_all" if all_contents else "")
+            + (f"_starts{level_starts}" if level_starts > 1
+               else "_jittered" if start_jitter else ""))
+
+
 def run(quick: bool, root: str | Path | None = None, pose_space: str | None = None,
-        all_contents: bool = False, start_jitter: float = 0.0) -> dict:
+        all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1) -> dict:
     import bayesmotion  # noqa: F401  (float64 on)
     from bayesmotion.data.motion import MotionDataset
     from bayesmotion.datasets.bandai import load_bandai
@@ -209,9 +223,10 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
     if pose_space is not None:
         cfg["pose_space"] = pose_space
     cfg["start_jitter"] = float(start_jitter)
+    cfg["level_starts"] = int(level_starts)
     cfg["rest_frames"] = cfg["pose_space"] == "angles"  # joint angles only (see module doc)
     root = Path(root) if root is not None else DATA_ROOT
-    name = NAME + ("_all" if all_contents else "") + ("_jittered" if start_jitter else "")
+    name = result_name(all_contents, start_jitter, level_starts)
     base = {"name": name, "mode": "quick" if quick else "full", "settings": dict(cfg)}
     if not bandai_present(root):
         return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
@@ -245,7 +260,7 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
             "seconds_total": total, "headline": rows}
 
 
-def rescore(all_contents: bool = False, start_jitter: float = 0.0) -> int:
+def rescore(all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1) -> int:
     """Summarise a stored result's labels again from its per-clip rows and rewrite it; the
     folds, timings and machine stay those of the run that produced them (``rescored_utc``
     says when the summaries were recomputed)."""
@@ -254,7 +269,7 @@ def rescore(all_contents: bool = False, start_jitter: float = 0.0) -> int:
 
     from bayesmotion.evaluation.evaluate import score_labels
 
-    name = NAME + ("_all" if all_contents else "") + ("_jittered" if start_jitter else "")
+    name = result_name(all_contents, start_jitter, level_starts)
     path = RESULTS / f"{name}.json"
     stored = json.loads(path.read_text())
     res = stored["result"]
@@ -278,17 +293,26 @@ def main(argv=None) -> int:
                     help="all 40 shared clips (10 contents x 4 emotions) instead of the walks; "
                          "writes results/bandai_inference_all.json")
     ap.add_argument("--start-jitter", type=float, default=0.0, metavar="SD",
-                    help="start every level projection from a copy of the nearest-frame "
-                         "latents jittered by N(0, SD^2) (infer_emotion's start_jitter); "
-                         "writes results/bandai_inference[_all]_jittered.json")
+                    help="sd of the jitter of the level projections' jittered starts "
+                         "(infer_emotion's start_jitter); alone, every level starts from one "
+                         "jittered copy of the nearest-frame latents and the result goes to "
+                         "results/bandai_inference[_all]_jittered.json")
+    ap.add_argument("--level-starts", type=int, default=1, metavar="K",
+                    help="project each level from its nearest-frame start and K - 1 copies "
+                         "jittered by --start-jitter (infer_emotion's level_starts); writes "
+                         "results/bandai_inference[_all]_startsK.json")
     ap.add_argument("--rescore", action="store_true",
                     help="no refit: summarise the stored result's per-clip answers again "
                          "(bayesmotion.evaluation.evaluate.score_labels) and rewrite its "
                          "label summaries and headline")
     a = ap.parse_args(argv)
+    from bayesmotion.validate import check_projection_starts
+
+    check_projection_starts("vertices", a.level_starts, a.start_jitter, "--level-starts",
+                            "--start-jitter")
     if a.rescore:
-        return rescore(a.all_contents, a.start_jitter)
-    res = run(a.quick, a.root, a.pose_space, a.all_contents, a.start_jitter)
+        return rescore(a.all_contents, a.start_jitter, a.level_starts)
+    res = run(a.quick, a.root, a.pose_space, a.all_contents, a.start_jitter, a.level_starts)
     write_json(RESULTS / f"{res['name']}.json", {**res, "status": "ok",
                                                  "machine": machine_info()})
     print(res.get("skipped") or res["confusion_table"])

@@ -9,12 +9,14 @@ walks leave-one-clip-out at the settings of ``bandai_inference.py`` (15 fps, 60 
 affective pose space, one fold refit of 100 warm-started iterations, projections of 1,000
 L-BFGS iterations), six starts per level: the nearest-frame latents exactly
 (the default) and five copies jittered by N(0, 0.02^2) in every latent coordinate
-(``level_starts=5, start_jitter=0.02``; ``level_starts=k`` runs the first k).
+(``level_starts=6, start_jitter=0.02``; ``level_starts=k`` >= 2 runs the first k, and
+``level_starts=1`` with the jitter the second).
 Reported side by side, from the same projections: the spread (max - min) of each level's
 evidence over the six starts, and the plain-evidence label answers of the unjittered start,
 of each jittered start alone, and of the best of k jittered starts (every choice of k), with
-and without the unjittered one (accuracy, ECE, label-set coverage, wrong answers with
-P >= 0.99). ``--quick``: two walk contents at 7.5 fps, 20 frames, 3 starts.
+the unjittered one (what ``level_starts`` runs) and without it (accuracy, ECE, label-set
+coverage, wrong answers with P >= 0.99). ``--quick``: two walk contents at 7.5 fps, 20
+frames, 3 starts.
 
 Current result (``results/projection_starts.json``): see ``["headline"]``.
 """
@@ -86,15 +88,12 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
                   latent_uncertainty=False, effective_frames=np.inf)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OutOfDistributionWarning)
-            ref = infer_emotion(fold, held, start_jitter=0.0, **kw).info["level_laplace"]
-            lap = infer_emotion(fold, held, level_starts=cfg["starts"] - 1,
+            lap = infer_emotion(fold, held, level_starts=cfg["starts"],
                                 start_jitter=JITTER, **kw).info["level_laplace"]
         rows.append({"trial": held.name, "true": held.labels["emotion"],
                      "seconds": time.perf_counter() - t0,
-                     "start_log_evidence": [r["start_log_evidence"] + d["start_log_evidence"]
-                                            for r, d in zip(ref, lap, strict=True)],
-                     "start_objectives": [r["start_objectives"] + d["start_objectives"]
-                                          for r, d in zip(ref, lap, strict=True)]})
+                     "start_log_evidence": [d["start_log_evidence"] for d in lap],
+                     "start_objectives": [d["start_objectives"] for d in lap]})
     return {**base, **summarize(rows, levels, cfg["starts"])}
 
 
@@ -123,8 +122,9 @@ def summarize(rows: list, levels: list, S: int) -> dict:
     jittered = range(1, S)
     best = best_of(range(S))
     unjittered, many = _answers(ev[..., 0], truth), _answers(best, truth)
-    # level_starts = k at start_jitter=JITTER: k jittered starts, every such choice among
-    # the S - 1 run here; and the same with the unjittered start added
+    # the best of k jittered starts, every such choice among the S - 1 run here; and the same
+    # with the unjittered start added (level_starts = k >= 2 at start_jitter=JITTER runs one
+    # of those choices, the first k - 1 jittered starts)
     by_starts = [{"starts": k, **spread_of(itertools.combinations(jittered, k))}
                  for k in range(1, S)]
     with_unjittered = [{"starts": k, **spread_of((0, *c) for c in

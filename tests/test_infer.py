@@ -770,17 +770,21 @@ def test_inference_with_the_seen_cells_follows_the_same_path(handshake_model, ha
 
 
 def test_level_starts_keep_each_levels_best_optimum(tiny_model, tiny_data):
-    """level_starts=3 projects each level from three jittered copies of its nearest-frame
-    start (the first is the level_starts=1 projection, reproduced) and keeps the best optimum:
-    its objective is the smallest of the three and its evidence is that start's."""
+    """level_starts=3 projects each level from its nearest-frame start (the unjittered
+    level_starts=1 projection, reproduced) and two jittered copies (the first of them is the
+    one jittered start of level_starts=1 with the same jitter, reproduced) and keeps the best
+    optimum: its objective is the smallest of the three and its evidence is that start's."""
     trial = tiny_data[tiny_data.labels("emotion").index("sad")]
     kw = dict(n_steps=30, latent_uncertainty=False, seed=4, start_jitter=0.02)
-    one = bm.infer_emotion(tiny_model, trial, **kw)
+    one = bm.infer_emotion(tiny_model, trial, **{**kw, "start_jitter": 0.0})
+    jittered = bm.infer_emotion(tiny_model, trial, **kw)
     many = bm.infer_emotion(tiny_model, trial, level_starts=3, **kw)
-    for k, (a, b) in enumerate(zip(one.info["level_laplace"], many.info["level_laplace"],
-                                   strict=True)):
+    for k, (a, aj, b) in enumerate(zip(one.info["level_laplace"],
+                                       jittered.info["level_laplace"],
+                                       many.info["level_laplace"], strict=True)):
         assert len(b["start_objectives"]) == len(b["start_log_evidence"]) == 3
         assert b["start_objectives"][0] == pytest.approx(a["start_objectives"][0], rel=1e-12)
+        assert b["start_objectives"][1] == pytest.approx(aj["start_objectives"][0], rel=1e-12)
         j = int(np.argmin(b["start_objectives"]))
         assert many.info["level_objectives"][k] == b["start_objectives"][j]
         assert many.info["level_log_evidence"][k] == b["start_log_evidence"][j]

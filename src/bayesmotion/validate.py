@@ -427,8 +427,9 @@ def check_projection_starts(emotion_starts, level_starts, start_jitter,
         sd = float("nan")
     if _is_bool(start_jitter) or not isinstance(start_jitter, numbers.Real) \
             or not np.isfinite(sd) or sd < 0:
-        raise BayesmotionError(f"{jitter_flag} (sd of the jitter of each level projection's "
-                               f"start, latent units) must be a finite number >= 0, got "
+        raise BayesmotionError(f"{jitter_flag} (sd of the jitter of the level projections' "
+                               f"jittered starts, latent units) must be a finite number >= 0, "
+                               f"got "
                                f"{start_jitter!r}")
     if start_jitter > 0 and emotion_starts != "vertices":
         raise BayesmotionError(f"{jitter_flag} > 0 needs emotion_starts='vertices' (it jitters "

@@ -162,13 +162,15 @@ def _parser() -> argparse.ArgumentParser:
                         "'levels': that start and one from each emotion level's frames, the "
                         "best optimum kept")
     i.add_argument("--level-starts", type=int, default=1, metavar="K",
-                   help="with 'vertices': projections per emotion level from copies of the "
-                        "nearest-frame start jittered by --start-jitter, the best kept "
-                        "(default 1; each start adds a projection per level)")
+                   help="with 'vertices': projections per emotion level, from the "
+                        "nearest-frame start and K - 1 copies of it jittered by "
+                        "--start-jitter, the best kept (default 1; each start adds a "
+                        "projection per level)")
     i.add_argument("--start-jitter", type=float, default=START_JITTER, metavar="SD",
-                   help=f"with 'vertices': sd of the jitter of each level projection's start "
-                        f"in latent units (default {START_JITTER:g}: the nearest training "
-                        f"frames' latents exactly; --level-starts > 1 needs SD > 0, e.g. 0.02)")
+                   help=f"with 'vertices': sd of the jitter of the level projections' "
+                        f"jittered starts in latent units (default {START_JITTER:g}: the "
+                        f"nearest training frames' latents exactly; with one start per level, "
+                        f"SD > 0 jitters it; --level-starts > 1 needs SD > 0, e.g. 0.02)")
     i.add_argument("--workers", type=int, default=2,
                    help="with a folder: processes of the local Dask cluster (default 2)")
     i.add_argument("--scheduler", default=None, metavar="ADDRESS",

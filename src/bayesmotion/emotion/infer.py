@@ -210,14 +210,16 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             ``level_probabilities`` (the plain evidence's posterior; ``probabilities`` adds
             the recording effect and the out-of-distribution shrinkage) and the Laplace
             details per level.
-        level_starts: projections per emotion level (``emotion_starts="vertices"``), each
-            from a copy of the level's nearest-frame start jittered by ``start_jitter`` (> 0
-            when ``level_starts`` > 1); each level keeps its best optimum, and ``info``'s
-            ``level_laplace`` holds every start's objective and evidence. Each start adds a
-            projection and a Hessian per level.
+        level_starts: projections per emotion level (``emotion_starts="vertices"``): one
+            from the level's nearest-frame start and ``level_starts`` - 1 from copies of it
+            jittered by ``start_jitter`` (> 0 when ``level_starts`` > 1); each level keeps
+            its best optimum (by density, never by label), and ``info``'s ``level_laplace``
+            holds every start's objective and evidence. Each start adds a projection and a
+            Hessian per level.
         start_jitter: sd of the N(0, sd^2) jitter added to every latent coordinate of each
-            level projection's start (``emotion_starts="vertices"``), seeded by ``seed`` and
-            the level. 0, the default, starts exactly on the nearest training frames' latents.
+            jittered level projection's start (``emotion_starts="vertices"``; with one start
+            per level, that start), seeded by ``seed`` and the level. 0, the default, starts
+            exactly on the nearest training frames' latents.
             The clip density is multimodal in the latents: on 16 held-out Bandai walks one
             level's evidence moved by a median 164 nats between starts, and the plain-evidence
             accuracy was 75% from the unjittered start and 87.5-93.8% from each of five starts

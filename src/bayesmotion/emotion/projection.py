@@ -387,11 +387,12 @@ def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
     """One projection per emotion level k with the emotion held at k's style vector, from the
     latents of the nearest frames of k's training trials; the other free styles (the couple,
     when not given) are projected with it. Each level's density drops the style cells it
-    cannot see (:func:`seen_predictor`). Each of the ``n_starts`` projections of a level
-    starts from a copy of that start jittered by N(0, ``jitter``^2) in every latent coordinate
-    (seeded by ``seed`` and the level, so the starts of ``n_starts`` = k are the first k of any
-    larger ``n_starts``; ``jitter=0``: the nearest frames' latents exactly, one start), and the
-    best optimum is kept: the clip density is multimodal in the latents. Returns per level:
+    cannot see (:func:`seen_predictor`). With ``n_starts`` > 1 a level is projected from that
+    start and from ``n_starts`` - 1 copies of it jittered by N(0, ``jitter``^2) in every latent
+    coordinate (seeded by ``seed`` and the level, so the starts of ``n_starts`` = k >= 2 are
+    the first k of any larger ``n_starts``); with one start, ``jitter`` > 0 jitters that
+    start, which is then the second start of any larger ``n_starts``.
+    The best optimum is kept: the clip density is multimodal in the latents. Returns per level:
     (params, scipy result, log evidence, info) -- see :func:`laplace_log_evidence`; info adds
     every start's ``start_objectives`` and ``start_log_evidence``."""
     Pm, Yp, mask, fixed_j, conc_j = args
@@ -405,8 +406,9 @@ def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
         Pk = seen_predictor(Pm, fixed_k, statics["int_factors"], statics["dyn_factors"])
         args_k = (Pk, Yp, mask, fixed_k, {f: conc_j[f] for f in others})
         best, objectives, evidences = None, [], []
-        for _ in range(n_starts):
-            start = _jittered(params, jitter, rng) if jitter > 0 else params
+        for j in range(n_starts):
+            start = _jittered(params, jitter, rng) if jitter > 0 and (
+                j > 0 or n_starts == 1) else params
             p, res = project(start, args_k, statics, max_iter, others, conc_o)
             log_ev, info = laplace_log_evidence(p, args_k, statics, T)
             objectives.append(float(res.fun))
