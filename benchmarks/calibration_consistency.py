@@ -35,19 +35,28 @@ N_DRAWS = 20000
 def _answers(result: dict, key: str | None):
     """(probabilities, truth, answered levels) of the stored clips; a clip is scored as
     answered (an answer shrunk to a flat prior counts as the label it reports)."""
-    from bayesmotion.evaluation.evaluate import score_labels
-
     levels = result["levels"]
-    if key is not None and "evidence" in result and any(
-            "label_index" not in (t.get(key) or {}) for t in result["trials"]):
-        score_labels(result)  # a result stored before the rows held their answers
     rows = [t for t in result["trials"]
             if (t if key is None else t.get(key) or {}).get("probabilities") is not None]
     p = np.array([t["probabilities"] if key is None else t[key]["probabilities"] for t in rows])
     truth = np.array([levels.index(t["true"]) for t in rows])
-    answered = np.array([levels.index(t["pred"]) if key is None else t[key]["label_index"]
+    answered = np.array([levels.index(t["pred"]) if key is None else _evidence_answer(t[key], t)
                          for t in rows], dtype=int)
     return p / p.sum(1, keepdims=True), truth, answered
+
+
+def _evidence_answer(cal: dict, row: dict) -> int:
+    """The recording effect's answered level: stored, or (a result stored before the rows
+    held it) the top level of its stored probabilities, ties broken by its in-distribution
+    probabilities, as ``EmotionPosterior.label`` does."""
+    from bayesmotion.emotion.evidence import evidence_power, level_posterior
+    from bayesmotion.emotion.result import top_level
+
+    if "label_index" in cal:
+        return int(cal["label_index"])
+    p_in = level_posterior(row["level_log_evidence"], np.log(row["level_prior"]),
+                           evidence_power(row["n_frames"], cal["n_eff"]))
+    return top_level(cal["probabilities"], p_in)
 
 
 def run(quick: bool) -> dict:

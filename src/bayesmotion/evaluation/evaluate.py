@@ -161,7 +161,8 @@ def score_labels(result: dict, with_evidence: bool | None = None) -> dict:
     result has them), ``evidence`` (the recording effect, n_eff cross-fitted). Each clip is
     scored as answered: an answer shrunk to a flat prior counts as the label it reports (the
     level its evidence favours), not as the first tied level. A function of the stored rows, so
-    a stored result can be summarised again without refitting.
+    a stored result can be summarised again without refitting. With the evidence it (re)writes
+    each row's ``evidence_calibrated`` in place, as :func:`leave_one_out` does.
 
     Returns:
         ``{"label_calibration": ..., "evidence": ...}`` (the second only with the evidence).
