@@ -1,6 +1,8 @@
 """Side-by-side emotion interpolation study on the shared Bandai walks.
 
     python benchmarks/study_interpolation.py [--quick] [--root DIR] [--out FILE]
+                                             [--max-iter N] [--optimize-style]
+                                             [--init shared] [--table]
 
 For each walk content and each emotion, four methods generate motion along the line from the
 neutral clip to the emotional one, ``s ∈ {0, .25, .5, .75, 1}``, and extrapolate to ``s = 1.25``:
@@ -99,6 +101,7 @@ class Settings:
     interaction_dim: int = 3
     max_iter: int = 1000
     optimize_style: bool = False
+    latent_init: str = "pca"
     n_harmonics: int = 5
     seed: int = 0
     infer_s: tuple[float, ...] = (0.0, 0.5, 1.0)
@@ -179,7 +182,7 @@ def fit_hgpdm(train: MotionDataset, cfg: Settings):
     spec = HGPDM(latent_dim=cfg.latent_dim, interaction_dim=cfg.interaction_dim,
                  interaction_factors=("emotion",), dynamics_factors=("emotion",))
     return spec.fit(train, max_iter=cfg.max_iter, seed=cfg.seed, progress=False,
-                    optimize_style=cfg.optimize_style)
+                    optimize_style=cfg.optimize_style, init=cfg.latent_init)
 
 
 def gen_hgpdm(model, train: MotionDataset, content: str, emotion: str, s: float,
@@ -435,7 +438,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
     """Run the study (QUICK or full ``Settings``), write the JSON atomically, return it."""
     cfg = settings or (QUICK if quick else Settings())
     root = Path(root) if root is not None else DATA_ROOT
-    out = Path(out) if out is not None else RESULTS / f"{NAME}.json"
+    out = Path(out) if out is not None else RESULTS / f"{result_name(cfg)}.json"
     base = {"name": NAME, "mode": "quick" if quick else "full", "settings": asdict(cfg)}
     if not bandai_present(root):
         result = {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
@@ -477,6 +480,13 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
     return result
 
 
+def result_name(cfg: Settings) -> str:
+    """The default result file's name: the study's, with the H-GPDM's variant appended
+    (``_learned_styles`` with ``--optimize-style``, ``_shared_latents`` with ``--init shared``)."""
+    return (NAME + ("_learned_styles" if cfg.optimize_style else "")
+            + ("_shared_latents" if cfg.latent_init == "shared" else ""))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one pair, few iterations")
@@ -485,6 +495,9 @@ def main(argv=None) -> int:
     ap.add_argument("--max-iter", type=int, default=None, help="override the H-GPDM iterations")
     ap.add_argument("--optimize-style", action="store_true",
                     help="learn the emotions' style vectors in the H-GPDM fit")
+    ap.add_argument("--init", choices=("pca", "shared"), default="pca",
+                    help="the H-GPDM's latent initialisation (fit(init=...)); 'shared' starts "
+                         "every emotion's trials in one region of the interaction latents")
     ap.add_argument("--table", action="store_true",
                     help="print the markdown table of an existing result (--out or the default "
                          "results file) instead of running")
@@ -500,6 +513,8 @@ def main(argv=None) -> int:
         cfg = replace(cfg, max_iter=a.max_iter)
     if a.optimize_style:
         cfg = replace(cfg, optimize_style=True)
+    if a.init != "pca":
+        cfg = replace(cfg, latent_init=a.init)
     res = run(a.quick, a.root, a.out, cfg)
     print(res.get("skipped") or res["conclusion"])
     return 0

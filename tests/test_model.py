@@ -12,7 +12,7 @@ import pytest
 from jax.flatten_util import ravel_pytree
 
 import bayesmotion as bm
-from bayesmotion.errors import ModelFileError
+from bayesmotion.errors import BayesmotionError, ModelFileError
 from bayesmotion.model.io import load
 from bayesmotion.model.logpost import LogPosterior
 from bayesmotion.model.spec import HGPDM
@@ -330,3 +330,35 @@ def test_invalid_priors_are_refused_by_name(bad):
 
     with pytest.raises(bm.BayesmotionError, match=f"Priors.{next(iter(bad))}"):
         Priors(**bad)
+
+
+def test_shared_latent_init_puts_every_style_cell_in_one_region(fitted):
+    """fit(init="shared"): I starts from the stacked X with each interaction cell's mean
+    removed, so every cell's latents are centred on one point (PCA's keep their cells apart);
+    X is PCA's either way; an unknown name or type is refused before any work."""
+    from bayesmotion.gp.densities import cell_ids
+    from bayesmotion.model.fit import init_params
+
+    spec, data = fitted.spec, fitted.data
+    cells = cell_ids([data.onehot[f][data.trial_of_frame] for f in spec.interaction_factors])
+    assert cells.max() >= 1  # at least two cells to compare
+
+    def cell_means(I):
+        return np.stack([I[cells == c].mean(0) for c in range(cells.max() + 1)])
+
+    pca_p = init_params(spec, data, 0)
+    shared = init_params(spec, data, 0, latents="shared")
+    np.testing.assert_array_equal(pca_p["X"], shared["X"])
+    spread = np.abs(cell_means(pca_p["I"])).max()
+    assert spread > 0.1  # PCA's cells start apart (the first component has unit sd)
+    # shared: only the 1e-3 tie-breaking jitter is left of the cell means
+    assert np.abs(cell_means(shared["I"])).max() < 0.02 * spread
+    assert shared["I"][:, 0].std() > 0.5  # the within-cell variation is kept, not collapsed
+    tiny = tiny_dataset()
+    model = HGPDM(latent_dim=3, interaction_dim=3).fit(tiny, max_iter=5, progress=False,
+                                                       init="shared")
+    assert np.all(np.isfinite(model.params["I"]))
+    for bad, match in (("random", "one of"), (3, "parameter dict")):
+        with pytest.raises(BayesmotionError, match=match):
+            HGPDM(latent_dim=3, interaction_dim=3).fit(tiny, max_iter=5, progress=False,
+                                                       init=bad)

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bayesmotion.data.motion import MotionDataset
 from bayesmotion.errors import BayesmotionError
+from bayesmotion.gp.densities import cell_ids
 from bayesmotion.model.data import ModelData, fit_codecs, prepare_data
 from bayesmotion.model.fitted import FittedHGPDM, trial_records
 from bayesmotion.model.layers import DynamicsIndex, InducingPlan
@@ -24,11 +26,14 @@ from bayesmotion.optim.minimize import CONVERGENCE_RTOL, map_optimize
 if TYPE_CHECKING:
     from bayesmotion.model.spec import HGPDM
 
+#: how ``fit(init=...)`` can initialise the latents by name
+LATENT_INITS = ("pca", "shared")
+
 
 def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tuple = False,
               max_iter: int = 1000, gtol: float = 1e-5, rtol: float = CONVERGENCE_RTOL,
               max_seconds: float | None = None, seed: int = 0, progress: bool = True,
-              init: dict | None = None) -> FittedHGPDM:
+              init: dict | str | None = None) -> FittedHGPDM:
     """Fit latents X, I and hyperparameters (gamma, beta, alpha) by MAP.
 
     Args:
@@ -50,17 +55,31 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tup
             (a time budget; the fit is then reported as not converged).
         seed: seed of the initial perturbation (the fit is deterministic for a seed).
         progress: show a progress bar with the objective.
-        init: starting parameters (e.g. a previous fit's, for warm-started refits); must have
-            the shapes this dataset implies. Default: PCA initialisation.
+        init: starting parameters (e.g. a previous fit's, for warm-started refits; they must
+            have the shapes this dataset implies), or how to initialise the latents:
+            ``"pca"`` (the default): X from each actor's poses and I from the stacked X by
+            PCA, so trials of different styles start in different latent regions;
+            ``"shared"``: I by PCA of the stacked X with each interaction style cell's mean
+            removed, so every cell's trials start in one shared region of I (e.g. one gait
+            cycle for every emotion) and the style-specific mappings carry the differences
+            (:func:`init_params`). Checked before any work.
 
     Returns:
         FittedHGPDM with the MAP parameters and convergence diagnostics in ``.diagnostics``.
     """
+    latents = init if isinstance(init, str) else "pca"
+    if latents not in LATENT_INITS:
+        raise BayesmotionError(f"init must be a parameter dict or one of {LATENT_INITS}, got "
+                               f"{init!r}")
+    init = None if isinstance(init, str) else init
+    if init is not None and not isinstance(init, Mapping):
+        raise BayesmotionError(f"init must be a parameter dict or one of {LATENT_INITS}, got "
+                               f"{type(init).__name__}")
     spec = spec.resolved(dataset)
     codecs = fit_codecs(spec, dataset)
     data = prepare_data(spec, dataset, codecs)
     logp = LogPosterior(spec, data)
-    params0 = init_params(spec, data, seed)
+    params0 = init_params(spec, data, seed, latents=latents)
     free = _free_factors(optimize_style, spec.factors)
     for f, conc in logp.style_prior.concentration.items():
         if f in free or STYLE_PREFIX + f in (init or {}):  # init's style vectors stay free
@@ -98,15 +117,30 @@ def pca(Y: np.ndarray, q: int) -> np.ndarray:
     return Z / sd
 
 
-def init_params(spec: HGPDM, data: ModelData, seed: int = 0, jitter_scale: float = 1e-3):
+def init_params(spec: HGPDM, data: ModelData, seed: int = 0, jitter_scale: float = 1e-3,
+                latents: str = "pca"):
     """PCA initialisation of X (per actor) and I (from the stacked X), default hyperparameters.
 
-    A tiny seeded perturbation breaks exact ties (deterministic for a seed).
+    ``latents="shared"``: I from the stacked X with the mean of each interaction style cell
+    (the trials sharing all interaction-factor levels) removed, so the cells overlap in I.
+    With one-hot styles the interaction kernel vanishes between cells, and so does the
+    dynamics kernel when the dynamics factors include every interaction factor (the
+    default): then the overlap costs no likelihood, and a rollout at mixed style coordinates
+    blends mappings that are all defined where it is. A tiny seeded perturbation breaks
+    exact ties (deterministic for a seed).
     """
+    if latents not in LATENT_INITS:
+        raise BayesmotionError(f"latents must be one of {LATENT_INITS}, got {latents!r}")
     rng = np.random.default_rng(seed)
     X = np.stack([pca(Y, spec.latent_dim) for Y in data.Y])
     Z = np.concatenate(list(X), axis=1)
-    I = pca(Z, spec.interaction_dim)
+    if latents == "shared" and spec.interaction_factors:
+        tof = data.trial_of_frame
+        cells = cell_ids([data.onehot[f][tof] for f in spec.interaction_factors])
+        means = np.stack([Z[cells == c].mean(0) for c in range(cells.max() + 1)])
+        I = pca(Z - means[cells], spec.interaction_dim)
+    else:
+        I = pca(Z, spec.interaction_dim)
     X = X + jitter_scale * rng.standard_normal(X.shape)
     I = I + jitter_scale * rng.standard_normal(I.shape)
     var_y = float(np.mean([np.mean(Y**2) for Y in data.Y]))
