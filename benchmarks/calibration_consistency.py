@@ -2,8 +2,9 @@
 
     python benchmarks/run_all.py --only calibration_consistency
 
-Reads the per-clip label probabilities that ``bandai_inference`` (16 walks),
-``bandai_inference --all-contents`` (40 clips, when its result exists) and
+Reads the per-clip label probabilities that ``bandai_inference`` (16 walks; and with
+``--level-starts 3 --start-jitter 0.02``), ``bandai_inference --all-contents`` (40 clips, when
+its result exists) and
 ``handshake_inference`` (24 built-in trials) stored in ``results/``, plain and with the
 recording effect, and runs ``bayesmotion.evaluation.calibration.calibration_consistency`` on
 each, every clip scored as the label it answered (consistency resampling, Broecker and Smith
@@ -27,7 +28,9 @@ import json
 import numpy as np
 from _common import RESULTS, headline
 
-SOURCES = {"bandai_inference": "16 Bandai walks", "bandai_inference_all": "40 Bandai clips",
+SOURCES = {"bandai_inference": "16 Bandai walks",
+           "bandai_inference_starts3": "16 Bandai walks, level_starts=3",
+           "bandai_inference_all": "40 Bandai clips",
            "handshake_inference": "24 built-in handshakes"}
 N_DRAWS = 20000
 

@@ -206,7 +206,8 @@ def render_docs(page: str, results: dict[str, dict]) -> str:
 # clips of ``bandai_inference.py --all-contents``, the walks from jittered level starts
 # (``--start-jitter 0.02``), and ``device_timings.py --merge`` of a lent
 # GPU's part with this CPU's (run by hand: the suite has no GPU)
-EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all", "bandai_inference_jittered"),
+EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all", "bandai_inference_jittered",
+                                      "bandai_inference_starts3"),
                  "infer_speed": ("device_timings",)}
 
 

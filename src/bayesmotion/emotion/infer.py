@@ -184,7 +184,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             covering each chain's burn-in), and their samples are pooled.
         max_iter: L-BFGS iterations of the projection (per start). The default keeps a
             20-frame handshake under 2 s (``benchmarks/results/infer_speed.json``: median
-            1.17 s with "vertices", 0.43 s with "nearest"), but the projection usually stops
+            1.36 s with "vertices", 0.53 s with "nearest"), but the projection usually stops
             at this limit, not at an optimum; the benchmarks use 1000 (on one held-out
             handshake the best optimum improved by 117 nats from 200 to 1000 iterations and
             the label went from wrong to right).
@@ -205,7 +205,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             read two sad trials as neutral (91.7%); "vertices" compares every
             level at its own optimum (24/24). On generated clips between two emotions (demo
             model, s in {0, .25, .5, .75, 1}) its mean absolute error in s is 0.027
-            (neutral to happy) and 0.032 (sad to angry), against 0.045 and 0.47 with
+            (neutral to happy) and 0.065 (sad to angry), against 0.041 and 0.47 with
             "nearest". With "vertices" ``info`` holds ``level_log_evidence``,
             ``level_probabilities`` (the plain evidence's posterior; ``probabilities`` adds
             the recording effect and the out-of-distribution shrinkage) and the Laplace
@@ -221,13 +221,15 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             per level, that start), seeded by ``seed`` and the level. 0, the default, starts
             exactly on the nearest training frames' latents.
             The clip density is multimodal in the latents: on 16 held-out Bandai walks one
-            level's evidence moved by a median 164 nats between starts, and the plain-evidence
-            accuracy was 75% from the unjittered start and 87.5-93.8% from each of five starts
-            jittered by 0.02 (``benchmarks/results/projection_starts.json``), but the full
-            walk benchmark read 13 of 16 right either way (``bandai_inference.json``,
-            ``bandai_inference_jittered.json``), and on generated handshakes between sad and
-            angry jittered starts read s = 0.5 and 0.75 as neutral (mean absolute error 0.28
-            against 0.03; ``infer_speed.json``).
+            level's evidence moved by a median 164 nats between starts
+            (``benchmarks/results/projection_starts.json``). The full walk benchmark read 13
+            of 16 right from one start per level, unjittered or jittered by 0.02
+            (``bandai_inference.json``, ``bandai_inference_jittered.json``), and 15 of 16 with
+            ``level_starts=3, start_jitter=0.02`` (``bandai_inference_starts3.json``, at
+            about three times the projection cost); recommended for real recordings. On
+            generated handshakes between sad and angry one jittered start read s = 0.5 and
+            0.75 as neutral (mean absolute error 0.28 against 0.07 unjittered), three starts
+            gave the unjittered answers (``infer_speed.json``).
         effective_frames: n_eff, how many of the clip's frames count as independent evidence
             for its label (:mod:`bayesmotion.emotion.evidence`): the label probabilities
             raise the levels' evidence to the power n_eff / (n_eff + T)
