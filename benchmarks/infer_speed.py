@@ -4,7 +4,7 @@
 
 The model is the demo's: ``HGPDM()`` fitted by MAP on the built-in handshakes at 10 fps without
 its four held-out trials (one per emotion). ``infer_emotion`` then reads each held-out trial
-(20 frames, both actors, couple given) with its default settings (64 walkers, 150 steps, a
+(17 frames, both actors, couple given) with its default settings (64 walkers, 150 steps, a
 third discarded). The first call includes JAX compilation and is reported apart; the others
 are timed one by one, with the effective sample size of the emotion posterior (samples kept /
 the largest integrated autocorrelation time) and the split of each call into encoding, MAP

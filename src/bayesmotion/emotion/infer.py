@@ -183,7 +183,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             out: each of the ``n_draws`` draws runs ``n_steps // n_draws + 50`` steps (the 50
             covering each chain's burn-in), and their samples are pooled.
         max_iter: L-BFGS iterations of the projection (per start). The default keeps a
-            20-frame handshake under 2 s (``benchmarks/results/infer_speed.json``: median
+            17-frame handshake under 2 s (``benchmarks/results/infer_speed.json``: median
             1.36 s with "vertices", 0.53 s with "nearest"), but the projection usually stops
             at this limit, not at an optimum; the benchmarks use 1000 (on one held-out
             handshake the best optimum improved by 117 nats from 200 to 1000 iterations and
@@ -228,7 +228,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             ``level_starts=3, start_jitter=0.02`` (``bandai_inference_starts3.json``, at
             about three times the projection cost); recommended for real recordings. On
             generated handshakes between sad and angry one jittered start read s = 0.5 and
-            0.75 as neutral (mean absolute error 0.28 against 0.07 unjittered), three starts
+            0.75 as neutral (mean absolute error 0.28 against 0.065 unjittered), three starts
             gave the unjittered answers (``infer_speed.json``).
         effective_frames: n_eff, how many of the clip's frames count as independent evidence
             for its label (:mod:`bayesmotion.emotion.evidence`): the label probabilities
@@ -336,7 +336,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
                                                        seed, start_jitter)
         # the chosen level's latents and the free styles together, from just inside its vertex:
         # the clip's emotion may lie between levels (an interpolated clip: mean absolute error
-        # 0.03 over s in {0, .25, .5, .75, 1} on generated handshakes, 0.15 without this step)
+        # 0.046 over s in {0, .25, .5, .75, 1} on generated handshakes, infer_speed.json)
         params, res = minimize_scaled(params, args, statics, max_iter)
     else:
         starts = projection_starts(model, Ys, B, inferred, conc, emotion_starts)
