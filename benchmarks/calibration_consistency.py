@@ -50,16 +50,12 @@ def _answers(result: dict, key: str | None):
 
 def _evidence_answer(cal: dict, row: dict) -> int:
     """The recording effect's answered level: stored, or (a result stored before the rows
-    held it) the top level of its stored probabilities, ties broken by its in-distribution
-    probabilities, as ``EmotionPosterior.label`` does."""
-    from bayesmotion.emotion.evidence import evidence_power, level_posterior
-    from bayesmotion.emotion.result import top_level
+    held it) recomputed from the row's evidence at its stored n_eff."""
+    from bayesmotion.evaluation.evaluate import recording_effect_answer
 
     if "label_index" in cal:
         return int(cal["label_index"])
-    p_in = level_posterior(row["level_log_evidence"], np.log(row["level_prior"]),
-                           evidence_power(row["n_frames"], cal["n_eff"]))
-    return top_level(cal["probabilities"], p_in)
+    return recording_effect_answer(row, cal["n_eff"])[1]
 
 
 def run(quick: bool) -> dict:

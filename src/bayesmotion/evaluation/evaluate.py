@@ -140,10 +140,9 @@ def _evidence_calibrated(rows, truth_idx, q) -> dict:
         keep = everyone != i
         n_eff = calibrate_effective_frames(L[keep], T[keep], truth_idx[keep], lp[keep],
                                            w[keep])["n_eff"]
-        p_in = level_posterior(L[i], lp[i], evidence_power(T[i], n_eff))
-        p = w[i] * p_in + (1 - w[i]) * np.exp(lp[i])
+        p, label = recording_effect_answer(r, n_eff)
         probs.append(p)
-        labels.append(top_level(p, p_in))
+        labels.append(label)
         r["evidence_calibrated"] = {"n_eff": n_eff, "probabilities": p.tolist(),
                                     "label_set_size": label_set_size(p, q),
                                     "label_index": labels[-1]}
@@ -153,6 +152,19 @@ def _evidence_calibrated(rows, truth_idx, q) -> dict:
             "n_eff": {"median": float(np.median(n_eff)), "min": float(n_eff.min()),
                       "max": float(n_eff.max())},
             "n_eff_all_trials": calibrate_effective_frames(L, T, truth_idx, lp, w)["n_eff"]}
+
+
+def recording_effect_answer(row: dict, n_eff: float) -> tuple[np.ndarray, int]:
+    """One :func:`leave_one_out` row's label probabilities with the recording effect at
+    ``n_eff`` (its plain level evidence raised to the power n_eff / (n_eff + T), shrunk by its
+    in-distribution weight) and its answer, ties broken by the evidence as
+    :attr:`EmotionPosterior.label` does."""
+    lp = np.log(np.asarray(row["level_prior"], dtype=np.float64))
+    w = float(row["in_distribution_weight"])
+    p_in = level_posterior(np.asarray(row["level_log_evidence"], dtype=np.float64), lp,
+                           evidence_power(row["n_frames"], n_eff))
+    p = w * p_in + (1 - w) * np.exp(lp)
+    return p, top_level(p, p_in)
 
 
 def score_labels(result: dict, with_evidence: bool | None = None) -> dict:
