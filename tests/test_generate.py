@@ -352,3 +352,78 @@ def test_packed_lower_triangular_products_equal_the_dense_product(n):
     fit = predict.LayerFit(predict.pack_lower(L), np.zeros((n, 1)))
     np.testing.assert_allclose(np.asarray(predict.whitened_norms(fit, k)),
                                np.sum((L @ k) ** 2, 0), rtol=1e-12)
+
+
+@pytest.mark.parametrize("memory", [40, 5])
+def test_path_conditioned_steps_equal_the_gp_refitted_on_the_path(tiny_model, memory):
+    """Each step of a path-conditioned sample is the dynamics GP's predictive given the
+    training rows *and* the last ``memory`` steps of the path as noisy observations: checked
+    against that GP assembled densely from scratch (the drawn normal recovered from the
+    returned step and variance must be the one the step's key draws)."""
+    import jax
+    import jax.numpy as jnp
+
+    from bayesmotion.gp import kernels
+    from bayesmotion.model import layers
+    from bayesmotion.model.generate import dynamics_rollout
+    from bayesmotion.model.predict import noise_variances, style_vectors
+
+    P, o = tiny_model.predictor(), tiny_model.spec.order
+    n = 20
+    fd = tiny_model.spec.dynamics_factors
+    # between the emotions (more than one cell counts), the first level of any other factor
+    coords = [np.tile([0.3, 0.7] if f == "emotion" else np.eye(len(tiny_model.levels[f]))[0],
+                      (n, 1)) for f in fd]
+    assert "emotion" in fd
+    dyn_s = tuple(style_vectors(P, fd, coords))
+    I0 = tiny_model.latents(0)["I"][:o]
+    key = jax.random.PRNGKey(7)
+    I, v = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n, True, memory=memory)
+    I, v = np.asarray(I), np.asarray(v)
+    z = np.asarray(jax.vmap(lambda k: jax.random.normal(k, (I.shape[1],)))(
+        jax.random.split(key, n)))
+    noise = float(noise_variances(P)["I"])
+    a = P.alpha
+    U = [np.asarray(u) for u in P.dyn_lags]  # training inputs, o arrays (M, Q)
+    S = [np.asarray(s) for s in P.dyn_style]
+    K = np.asarray(kernels.dynamics_kernel(U, U, S, S, a)) + noise * np.eye(U[0].shape[0])
+    resid = K @ np.asarray(P.dyn.A)  # training outputs less the autoregressive mean
+    path = np.concatenate([I0, I])
+    for t in range(n):
+        lo = max(0, t - memory)
+        lags = [path[o + s - 1 - l:o + s - l] for s in range(lo, t + 1) for l in range(o)]
+        Ux = [np.concatenate([U[l]] + [lags[(s - lo) * o + l] for s in range(lo, t)])
+              for l in range(o)]
+        Sx = [np.concatenate([s] + [np.asarray(d)[[s_]] for s_ in range(lo, t)])
+              for s, d in zip(S, dyn_s, strict=True)]
+        x = [lags[(t - lo) * o + l] for l in range(o)]
+        sx = [np.asarray(d)[[t]] for d in dyn_s]
+        ar = lambda ls: np.asarray(layers.ar_mean(jnp.stack(ls), P.ar))
+        y = np.concatenate([resid] + [path[[o + s]] - ar([lags[(s - lo) * o + l]
+                                                           for l in range(o)])
+                                      for s in range(lo, t)])
+        Kx = np.array(kernels.dynamics_kernel(Ux, Ux, Sx, Sx, a))
+        Kx += noise * np.eye(Kx.shape[0])
+        Kx[U[0].shape[0]:, U[0].shape[0]:] += 1e-10 * float(a[0]) * np.eye(t - lo)
+        kx = np.asarray(kernels.dynamics_kernel(Ux, x, Sx, sx, a))[:, 0]
+        mean = kx @ np.linalg.solve(Kx, y) + ar(x)[0]
+        var = float(np.asarray(kernels.dynamics_diag(x, sx, a))[0]
+                    - kx @ np.linalg.solve(Kx, kx)) + noise
+        np.testing.assert_allclose(v[t], var, rtol=1e-5)
+        np.testing.assert_allclose((I[t] - mean) / np.sqrt(var), z[t], rtol=1e-5, atol=1e-6)
+
+
+def test_sample_memory_is_checked_and_zero_keeps_the_independent_draws(tiny_model):
+    """``sample_memory`` must be an integer >= 0; 0 draws each step given the training data
+    alone (the step-by-step sampler), so its first free step equals every memory's and its later
+    steps differ from a path-conditioned sample with the same keys."""
+    for bad in (-1, 2.5, True):
+        with pytest.raises(BayesmotionError, match="sample_memory must be an integer >= 0"):
+            tiny_model.generate(emotion="happy", n_frames=10, n_samples=1, sample_memory=bad)
+    o = tiny_model.spec.order
+    a = tiny_model.generate(emotion="happy", n_frames=12, n_samples=3, seed=4, sample_memory=0)
+    b = tiny_model.generate(emotion="happy", n_frames=12, n_samples=3, seed=4, sample_memory=8)
+    np.testing.assert_allclose(a.samples["I"][:, :o + 1], b.samples["I"][:, :o + 1],
+                               rtol=1e-12, atol=1e-12)
+    assert not np.allclose(a.samples["I"][:, o + 2:], b.samples["I"][:, o + 2:])
+    np.testing.assert_array_equal(a.I, b.I)  # the mean rollout does not sample

@@ -128,7 +128,8 @@ class Posterior:
                  **styles):
         """Posterior-predictive generation; see
         :func:`bayesmotion.inference.predictive.generate_posterior` (``client`` or
-        ``workers``: the draws' rollouts as tasks on a Dask cluster)."""
+        ``workers``: the draws' rollouts as tasks on a Dask cluster; ``sample_memory`` and
+        any other style factor as in :meth:`bayesmotion.FittedHGPDM.generate`)."""
         return generate_posterior(self, emotion, couple, n_frames, n_samples, start, seed,
                                   n_draws, client, workers, **styles)
 

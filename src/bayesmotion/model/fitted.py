@@ -14,7 +14,7 @@ from bayesmotion.data.skeleton import Skeleton
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.archive import save_model
 from bayesmotion.model.data import ModelData, encode_trial
-from bayesmotion.model.generate import generate
+from bayesmotion.model.generate import SAMPLE_MEMORY, generate
 from bayesmotion.model.logpost import LogPosterior, ar_of, constrained, trial_styles
 from bayesmotion.model.predict import condition
 
@@ -173,7 +173,7 @@ class FittedHGPDM:
 
     # ------------------------------------------------------------------ generation
     def generate(self, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,
-                 start=None, seed: int = 0, **styles):
+                 start=None, seed: int = 0, sample_memory: int = SAMPLE_MEMORY, **styles):
         """Generate motion top-down with predictive uncertainty.
 
         Args:
@@ -187,11 +187,15 @@ class FittedHGPDM:
                 at the first frame, the first of equally long ones),
                 ``"prior"`` (zero latent state), or an (order, Q_I) latent array.
             seed: PRNG seed of the samples.
+            sample_memory: steps of its own path each step of a sampled rollout is conditioned
+                on besides the training data, as if the path so far were training data (0:
+                each step drawn given the training data alone).
             **styles: values for any other style factor of the model.
         Returns:
             a :class:`bayesmotion.model.rollout.Rollout`.
         """
-        return generate(self, emotion, couple, n_frames, n_samples, start, seed, **styles)
+        return generate(self, emotion, couple, n_frames, n_samples, start, seed,
+                        sample_memory=sample_memory, **styles)
 
     def with_calibration(self, calibration: dict) -> FittedHGPDM:
         """This model with the emotion evidence's calibration ``calibration`` (at least

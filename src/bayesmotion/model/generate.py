@@ -2,9 +2,10 @@
 
 The dynamics layer is rolled out under ``lax.scan`` from a start state: by mean prediction, or,
 for ``n_samples > 0``, by drawing every step from the GP predictive ``N(mean, var + 1/alpha_noise)``
-(``vmap`` over samples). Each step is drawn given the previous *values* only, not the GP's
-function values at earlier inputs (the usual sequential approximation, as in the enhanced-GPDM
-of Ko & Fox). Every latent trajectory is then mapped top-down by mean prediction through the
+(``vmap`` over samples). By default each step is drawn given the previous *values* only, not
+the GP's function values at earlier inputs (the usual sequential approximation, as in the
+enhanced-GPDM of Ko & Fox); ``sample_memory=W`` conditions each step on the last W steps of its
+own path too (:func:`_path_sampled_rollout`). Every latent trajectory is then mapped top-down by mean prediction through the
 interaction and bottom layers (batched over frames) and to joint positions by forward
 kinematics.
 
@@ -27,6 +28,8 @@ import numpy as np
 
 from bayesmotion.data.fk import forward_kinematics, forward_kinematics_with_variance
 from bayesmotion.errors import BayesmotionError
+from bayesmotion.gp import kernels
+from bayesmotion.model import layers
 from bayesmotion.model.predict import (
     Predictor,
     dynamics_mean_stepper,
@@ -38,9 +41,10 @@ from bayesmotion.model.predict import (
     predict_interaction_mean,
     restrict_to_styles,
     style_vectors,
+    whiten,
 )
 from bayesmotion.model.rollout import Rollout
-from bayesmotion.validate import check_generate_args, check_generate_memory
+from bayesmotion.validate import check_generate_args, check_generate_memory, integer
 
 
 class Transition(NamedTuple):
@@ -99,9 +103,9 @@ def is_extrapolated(coords: np.ndarray) -> bool:
 
 
 # --------------------------------------------------------------------------- the jitted core
-@partial(jax.jit, static_argnames=("n_steps", "sample", "with_var"))
+@partial(jax.jit, static_argnames=("n_steps", "sample", "with_var", "memory"))
 def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
-                     with_var: bool = True):
+                     with_var: bool = True, memory: int = 0):
     """Roll the dynamics forward n_steps from I0 (o, Q) with per-step styles (n_steps, K_f).
 
     Returns (I (n_steps, Q), one-step variance (n_steps,) including the dynamics noise; None
@@ -130,6 +134,9 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
         new = mean[0] + jnp.sqrt(v) * jax.random.normal(k, mean[0].shape)
         return jnp.concatenate([new[None], lags[:-1]], axis=0), (new, v)
 
+    if sample and memory > 0:
+        keys = jax.random.split(key, n_steps)
+        return _path_sampled_rollout(P, I0, styles, keys, min(memory, n_steps))
     if sample:
         keys = jax.random.split(key, n_steps)
         _, (I, v) = jax.lax.scan(sample_step, I0[::-1], (tuple(styles), keys))
@@ -141,6 +148,62 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
     lags = jnp.stack([full[o - 1 - k:o - 1 - k + n_steps] for k in range(o)])
     _, var = predict_dynamics(P, lags, list(styles))
     return I, var + noise
+
+
+def _path_sampled_rollout(P: Predictor, I0, styles, keys, memory: int):
+    """A sampled rollout whose every step is drawn given the training data *and* the last
+    ``memory`` steps of its own path (inputs and drawn values), as if the path so far were
+    training data of the dynamics GP (the sampled function stays one function along the path).
+
+    Drawn independently, each step's deviation from the mean is white noise; once a path leaves
+    the training latents its predictive variance approaches the kernel's signal variance and the
+    white noise becomes the motion's jerk. Conditioned on its own path, a deviation at an input
+    near earlier inputs repeats theirs, so the path stays smooth.
+
+    The path's pseudo-observations enter through their covariance given the training data,
+    c(u, u') = k(u, u') - (L^-1 k_u)^T (L^-1 k_u'), kept for a ring buffer of ``memory`` steps
+    with each step's whitened cross-covariance; a step costs one (memory x memory) Cholesky
+    factor on top of the independent draw's O(M^2). Returns (I (n_steps, Q), the conditional
+    one-step variance (n_steps,) including the dynamics noise)."""
+    noise = noise_variances(P)["I"]
+    o, Q = I0.shape
+    W = memory
+    Mw = whiten(P.dyn, jnp.zeros((P.dyn.A.shape[0], 1), I0.dtype)).shape[0]
+    nugget = noise + 1e-10 * P.alpha[0]
+    carry0 = (I0[::-1], jnp.zeros((o, W, Q), I0.dtype),
+              tuple(jnp.zeros((W, s.shape[-1]), I0.dtype) for s in styles),
+              jnp.zeros((W, Mw), I0.dtype), jnp.zeros((W, Q), I0.dtype),
+              jnp.zeros((W, W), I0.dtype), jnp.zeros(W, I0.dtype), jnp.asarray(0))
+
+    def step(carry, inp):
+        lags, B_lags, B_sty, B_w, B_r, C, mask, head = carry
+        s, k = inp
+        x = lags[:, None, :]  # (o, 1, Q)
+        sx = [v[None] for v in s]
+        kx = kernels.dynamics_kernel(list(P.dyn_lags), list(x), list(P.dyn_style), sx, P.alpha)
+        w = whiten(P.dyn, kx)[:, 0]
+        m = (kx.T @ P.dyn.A)[0] + layers.ar_mean(x, P.ar)[0]
+        v0 = jnp.maximum(kernels.dynamics_diag(list(x), sx, P.alpha)[0] - w @ w, 0.0)
+        kb = kernels.dynamics_kernel(list(B_lags), list(x), list(B_sty), sx, P.alpha)[:, 0]
+        c = kb - B_w @ w  # covariance with each buffered step given the training data
+        cm = c * mask
+        G = C * mask[:, None] * mask[None] + jnp.diag(mask * nugget + (1.0 - mask))
+        L = jnp.linalg.cholesky(G)
+        a = jax.scipy.linalg.cho_solve((L, True), cm)
+        mean = m + a @ B_r
+        var = jnp.maximum(v0 - cm @ a, 0.0) + noise
+        new = mean + jnp.sqrt(var) * jax.random.normal(k, mean.shape)
+        row = c.at[head].set(v0)
+        C = C.at[head].set(row).at[:, head].set(row)
+        B_lags = B_lags.at[:, head].set(lags)
+        B_sty = tuple(b.at[head].set(v) for b, v in zip(B_sty, s, strict=True))
+        carry = (jnp.concatenate([new[None], lags[:-1]], axis=0), B_lags, B_sty,
+                 B_w.at[head].set(w), B_r.at[head].set(new - m), C, mask.at[head].set(1.0),
+                 (head + 1) % W)
+        return carry, (new, var)
+
+    _, (I, v) = jax.lax.scan(step, carry0, (tuple(styles), keys))
+    return I, v
 
 
 @partial(jax.jit, static_argnames=("n_actors",))
@@ -231,6 +294,9 @@ def _start_trial(model, styles, start) -> int:
 
 DIVERGED = 100.0
 """A rollout whose latents leave the training latents' range by this factor has diverged."""
+SAMPLE_MEMORY = 0
+"""Steps of its own path each step of a sampled rollout is conditioned on (0: independent
+draws given the training data alone); see :func:`_path_sampled_rollout`."""
 
 
 def check_bounded(I: np.ndarray, I_train: np.ndarray, dynamics_linear: str) -> None:
@@ -262,7 +328,7 @@ def check_decodes(model) -> None:
 
 def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,
              start=None, seed: int = 0, predictor: Predictor | None = None,
-             **styles) -> Rollout:
+             sample_memory: int = SAMPLE_MEMORY, **styles) -> Rollout:
     """Generate a rollout; see :meth:`FittedHGPDM.generate`."""
     check_generate_args(n_frames, n_samples, seed, {"emotion": emotion, "couple": couple,
                                                     **styles})
@@ -270,6 +336,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
                           sum(model.skeleton(a).n_joints for a in range(model.n_actors)),
                           model.predictor_rows, model.n_actors + 2)
     check_decodes(model)
+    sample_memory = integer(sample_memory, "sample_memory", low=0)
     if n_frames <= model.spec.order:
         raise BayesmotionError(f"n_frames must exceed the dynamics order ({model.spec.order})")
     if n_samples < 0:
@@ -316,7 +383,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
     if n_samples:
         keys = jax.random.split(key, n_samples + 1)[1:]
         roll = jax.vmap(lambda k: dynamics_rollout(P, jnp.asarray(I0), dyn_s, k, n_frames - o,
-                                                   True)[0])
+                                                   True, memory=sample_memory)[0])
         I_s = np.concatenate([np.broadcast_to(I0, (n_samples, o, I0.shape[1])),
                               np.asarray(roll(keys))], axis=1)
         check_bounded(I_s, reach, model.spec.dynamics_linear)
