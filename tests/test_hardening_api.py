@@ -239,6 +239,11 @@ def test_the_estimates_follow_their_documented_formulas():
                                                          + validate.fit_memory(N, L)
                                                          + 8 * 3 * 27 * L * N * N)
     assert validate.generate_memory(60, 4, 62, N, L) == 8 * 5 * 60 * (12 * 3 * 62 + L * N)
+    # samples conditioned on their path add one buffer of W cross-covariance rows each
+    assert (validate.generate_memory(60, 4, 62, N, L, sample_memory=16)
+            - validate.generate_memory(60, 4, 62, N, L)) == 8 * 4 * 16 * N
+    assert (validate.generate_memory(10, 4, 62, N, L, sample_memory=64)
+            - validate.generate_memory(10, 4, 62, N, L)) == 8 * 4 * 10 * N
     assert validate.infer_memory(40, N, L, 64, 150, 3) == 8 * (8 * L * 40 * N
                                                                + 3 * 64 * 150 * 3)
 

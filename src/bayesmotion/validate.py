@@ -223,13 +223,16 @@ def sample_memory(n_walkers: int, n_steps: int, ndim: int, n_frames: int, n_laye
 
 
 def generate_memory(n_frames: int, n_samples: int, n_joints: int, n_train_frames: int,
-                    n_layers: int) -> int:
+                    n_layers: int, sample_memory: int = 0) -> int:
     """Bytes of a generated rollout of T frames with S sampled rollouts besides the mean:
     ``8 * (S + 1) * T * (FRAME_FLOATS_PER_JOINT * 3 * J + n_layers * N)`` for J joints (all
     actors) and N training frames: every frame's positions, channel values and their
-    variances, and its cross-covariances with the training inputs of every layer."""
+    variances, and its cross-covariances with the training inputs of every layer; plus, for
+    samples conditioned on the last W = ``sample_memory`` steps of their path,
+    ``8 * S * min(W, T) * N`` for each sample's buffer of whitened cross-covariances."""
     per_frame = FRAME_FLOATS_PER_JOINT * 3 * int(n_joints) + int(n_layers) * int(n_train_frames)
-    return BYTES * (int(n_samples) + 1) * int(n_frames) * per_frame
+    buffers = int(n_samples) * min(int(sample_memory), int(n_frames)) * int(n_train_frames)
+    return BYTES * ((int(n_samples) + 1) * int(n_frames) * per_frame + buffers)
 
 
 def infer_memory(clip_frames: int, n_train_frames: int, n_layers: int, n_walkers: int,
@@ -380,9 +383,10 @@ def check_generate_args(n_frames, n_samples, seed_value, styles: dict) -> None:
 
 
 def check_generate_memory(n_frames: int, n_samples: int, n_joints: int, n_train_frames: int,
-                          n_layers: int) -> None:
+                          n_layers: int, sample_memory: int = 0) -> None:
     """Refuse a rollout whose :func:`generate_memory` exceeds the available memory."""
-    need = generate_memory(n_frames, n_samples, n_joints, n_train_frames, n_layers)
+    need = generate_memory(n_frames, n_samples, n_joints, n_train_frames, n_layers,
+                           sample_memory)
     check_memory(need, f"generating {n_frames} frames with {n_samples} sampled rollouts")
 
 

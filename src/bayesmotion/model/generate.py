@@ -5,9 +5,9 @@ for ``n_samples > 0``, by drawing every step from the GP predictive ``N(mean, va
 (``vmap`` over samples). By default each step is drawn given the previous *values* only, not
 the GP's function values at earlier inputs (the usual sequential approximation, as in the
 enhanced-GPDM of Ko & Fox); ``sample_memory=W`` conditions each step on the last W steps of its
-own path too (:func:`_path_sampled_rollout`). Every latent trajectory is then mapped top-down by mean prediction through the
-interaction and bottom layers (batched over frames) and to joint positions by forward
-kinematics.
+own path too (:func:`_path_sampled_rollout`). Every latent trajectory is then mapped top-down
+by mean prediction through the interaction and bottom layers (batched over frames) and to joint
+positions by forward kinematics.
 
 Reported along the rollout:
 
@@ -332,11 +332,11 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
     """Generate a rollout; see :meth:`FittedHGPDM.generate`."""
     check_generate_args(n_frames, n_samples, seed, {"emotion": emotion, "couple": couple,
                                                     **styles})
+    sample_memory = integer(sample_memory, "sample_memory", low=0)
     check_generate_memory(n_frames, n_samples,
                           sum(model.skeleton(a).n_joints for a in range(model.n_actors)),
-                          model.predictor_rows, model.n_actors + 2)
+                          model.predictor_rows, model.n_actors + 2, sample_memory)
     check_decodes(model)
-    sample_memory = integer(sample_memory, "sample_memory", low=0)
     if n_frames <= model.spec.order:
         raise BayesmotionError(f"n_frames must exceed the dynamics order ({model.spec.order})")
     if n_samples < 0:
