@@ -53,6 +53,12 @@ def _limb_speed(angles: np.ndarray) -> np.ndarray:
     return np.abs((d + 180.0) % 360.0 - 180.0).mean(-1)
 
 
+def _span(per_memory: dict) -> str:
+    """min-max of the long samples' limb motion ratios over emotions and samples."""
+    v = [x for e in per_memory["long"].values() for x in e["limb_motion_last_over_first"]]
+    return f"{min(v):.2f}-{max(v):.2f}"
+
+
 def run(quick: bool, root: str | Path | None = None) -> dict:
     from bayesmotion.data.motion import MotionDataset
     from bayesmotion.datasets.bandai import load_bandai
@@ -127,7 +133,8 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
             f"foot sliding {best['foot_sliding_ratio']:.2f} (independent "
             f"{base['foot_sliding_ratio']:.2f}); {cfg['long_frames']}-frame samples: latent "
             f"range <= {best['long_latent_range_max']:.2f}x (independent "
-            f"{base['long_latent_range_max']:.2f}x); "
+            f"{base['long_latent_range_max']:.2f}x), limb motion last/first 200 frames "
+            f"{_span(best)} (independent {_span(base)}); "
             + "; ".join(f"memory {m}: jerk {per[str(m)]['jerk_ratio']:.2f}"
                         for m in MEMORIES[1:-1])
             + f"; {cfg['timed_frames']} frames with {cfg['n_samples']} samples in "

@@ -71,8 +71,10 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     assert main(["generate", str(model), "--emotion", "happy", "--frames", "12", "--samples",
                  "1", "--sample-memory", "8", "--out", str(tmp_path / "gen_path")]) == 0
     assert len(list((tmp_path / "gen_path").glob("*.bvh"))) == 4
-    assert "--sample-memory must be an integer >= 0" in one_line_error(
+    assert "--sample-memory must be an integer in [0, 256]" in one_line_error(
         capsys, ["generate", str(model), "--sample-memory", "-1", "--out", str(tmp_path)])
+    assert "n_samples is 0" in one_line_error(
+        capsys, ["generate", str(model), "--sample-memory", "8", "--out", str(tmp_path)])
     clips = [str(p) for p in sorted((tmp_path / "gen").glob("*mean_actor*.bvh"))]
     assert len(clips) == 2
     capsys.readouterr()

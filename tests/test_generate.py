@@ -354,7 +354,7 @@ def test_packed_lower_triangular_products_equal_the_dense_product(n):
                                np.sum((L @ k) ** 2, 0), rtol=1e-12)
 
 
-@pytest.mark.parametrize("memory", [40, 5])
+@pytest.mark.parametrize("memory", [16, 5])
 def test_path_conditioned_steps_equal_the_gp_refitted_on_the_path(tiny_model, memory):
     """Each step of a path-conditioned sample is the dynamics GP's predictive given the
     training rows *and* the last ``memory`` steps of the path as noisy observations: checked
@@ -369,11 +369,13 @@ def test_path_conditioned_steps_equal_the_gp_refitted_on_the_path(tiny_model, me
     from bayesmotion.model.predict import noise_variances, style_vectors
 
     P, o = tiny_model.predictor(), tiny_model.spec.order
-    n = 20
+    n = 12
     fd = tiny_model.spec.dynamics_factors
-    # between the emotions (more than one cell counts), the first level of any other factor
-    coords = [np.tile([0.3, 0.7] if f == "emotion" else np.eye(len(tiny_model.levels[f]))[0],
-                      (n, 1)) for f in fd]
+    # the emotion moving between the levels step by step (more than one cell counts, and each
+    # buffered step keeps its own style), the first level of any other factor
+    s = np.linspace(0.15, 0.9, n)[:, None]
+    coords = [np.hstack([1 - s, s]) if f == "emotion"
+              else np.tile(np.eye(len(tiny_model.levels[f]))[0], (n, 1)) for f in fd]
     assert "emotion" in fd
     dyn_s = tuple(style_vectors(P, fd, coords))
     I0 = tiny_model.latents(0)["I"][:o]
@@ -414,12 +416,15 @@ def test_path_conditioned_steps_equal_the_gp_refitted_on_the_path(tiny_model, me
 
 
 def test_sample_memory_is_checked_and_zero_keeps_the_independent_draws(tiny_model):
-    """``sample_memory`` must be an integer >= 0; 0 draws each step given the training data
-    alone (the step-by-step sampler), so its first free step equals every memory's and its later
-    steps differ from a path-conditioned sample with the same keys."""
-    for bad in (-1, 2.5, True):
-        with pytest.raises(BayesmotionError, match="sample_memory must be an integer >= 0"):
+    """``sample_memory`` must be an integer in [0, 256], with samples; 0 draws each step given
+    the training data alone (the step-by-step sampler), so its first free step equals every
+    memory's and its later steps differ from a path-conditioned sample with the same keys."""
+    for bad in (-1, 2.5, True, 257):
+        with pytest.raises(BayesmotionError,
+                           match="sample_memory must be an integer in \\[0, 256\\]"):
             tiny_model.generate(emotion="happy", n_frames=10, n_samples=1, sample_memory=bad)
+    with pytest.raises(BayesmotionError, match="n_samples is 0"):
+        tiny_model.generate(emotion="happy", n_frames=10, sample_memory=8)
     o = tiny_model.spec.order
     a = tiny_model.generate(emotion="happy", n_frames=12, n_samples=3, seed=4, sample_memory=0)
     b = tiny_model.generate(emotion="happy", n_frames=12, n_samples=3, seed=4, sample_memory=8)

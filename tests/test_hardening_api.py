@@ -241,9 +241,9 @@ def test_the_estimates_follow_their_documented_formulas():
     assert validate.generate_memory(60, 4, 62, N, L) == 8 * 5 * 60 * (12 * 3 * 62 + L * N)
     # samples conditioned on their path add one buffer of W cross-covariance rows each
     assert (validate.generate_memory(60, 4, 62, N, L, sample_memory=16)
-            - validate.generate_memory(60, 4, 62, N, L)) == 8 * 4 * 16 * N
+            - validate.generate_memory(60, 4, 62, N, L)) == 8 * 4 * 16 * (N + 3 * 16)
     assert (validate.generate_memory(10, 4, 62, N, L, sample_memory=64)
-            - validate.generate_memory(10, 4, 62, N, L)) == 8 * 4 * 10 * N
+            - validate.generate_memory(10, 4, 62, N, L)) == 8 * 4 * 10 * (N + 3 * 10)
     assert validate.infer_memory(40, N, L, 64, 150, 3) == 8 * (8 * L * 40 * N
                                                                + 3 * 64 * 150 * 3)
 

@@ -166,6 +166,10 @@ def test_a_sparse_model_fits_saves_loads_and_generates(sparse_model, tmp_path):
     r0 = m.generate(emotion="sad", n_frames=40, n_samples=2, seed=1)
     np.testing.assert_array_equal(r.I, r0.I)
     assert np.all(np.isfinite(r.positions)) and np.all(r.I_var[r.n_observed:] > 0)
+    # samples conditioned on their own path, through the inducing inputs' predictive
+    rp = m.generate(emotion="sad", n_frames=40, n_samples=2, seed=1, sample_memory=16)
+    assert np.all(np.isfinite(rp.samples["positions"]))
+    np.testing.assert_array_equal(rp.I, r0.I)
     # a file whose inducing inputs do not have the specification's shape is refused
     with np.load(path, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}

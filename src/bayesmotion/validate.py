@@ -229,9 +229,11 @@ def generate_memory(n_frames: int, n_samples: int, n_joints: int, n_train_frames
     actors) and N training frames: every frame's positions, channel values and their
     variances, and its cross-covariances with the training inputs of every layer; plus, for
     samples conditioned on the last W = ``sample_memory`` steps of their path,
-    ``8 * S * min(W, T) * N`` for each sample's buffer of whitened cross-covariances."""
+    ``8 * S * w * (N + 3 w)`` with w = min(W, T): each sample's buffer of whitened
+    cross-covariances and its (w x w) covariance, system and factor."""
     per_frame = FRAME_FLOATS_PER_JOINT * 3 * int(n_joints) + int(n_layers) * int(n_train_frames)
-    buffers = int(n_samples) * min(int(sample_memory), int(n_frames)) * int(n_train_frames)
+    w = min(int(sample_memory), int(n_frames))
+    buffers = int(n_samples) * w * (int(n_train_frames) + 3 * w)
     return BYTES * ((int(n_samples) + 1) * int(n_frames) * per_frame + buffers)
 
 

@@ -54,7 +54,7 @@ from bayesmotion.evaluation.evaluate import format_confusion, leave_one_out
 from bayesmotion.inference.diagnostics import convergence
 from bayesmotion.inference.posterior import format_seconds
 from bayesmotion.inference.sample import sample_posterior
-from bayesmotion.model.generate import SAMPLE_MEMORY
+from bayesmotion.model.generate import MAX_SAMPLE_MEMORY, SAMPLE_MEMORY
 from bayesmotion.model.io import load
 from bayesmotion.model.spec import HGPDM
 from bayesmotion.viz.animate import animate
@@ -143,9 +143,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--frames", type=int, default=60)
     g.add_argument("--samples", type=int, default=0)
     g.add_argument("--sample-memory", type=int, default=SAMPLE_MEMORY, metavar="STEPS",
-                   help="steps of its own path each step of a sampled rollout is conditioned on "
-                        f"(0: each step given the training data alone; default "
-                        f"{SAMPLE_MEMORY})")
+                   help="steps of its own path each step of a sampled rollout is conditioned on, "
+                        f"at most {MAX_SAMPLE_MEMORY} (0: each step given the training data "
+                        f"alone; default {SAMPLE_MEMORY}); needs --samples")
     g.add_argument("--out", required=True)
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--gif", action="store_true", help="also write an animated GIF")
@@ -325,7 +325,7 @@ def _cmd_sample(a):
 def _cmd_generate(a):
     validate.integer(a.frames, "--frames", low=1)
     validate.integer(a.samples, "--samples", low=0)
-    validate.integer(a.sample_memory, "--sample-memory", low=0)
+    validate.integer(a.sample_memory, "--sample-memory", low=0, high=MAX_SAMPLE_MEMORY)
     validate.seed(a.seed, "--seed")
     emotion = _emotion(a.emotion)
     out = validate.output_dir(a.out, "--out")

@@ -37,6 +37,7 @@ from bayesmotion.errors import BayesmotionError, warn
 from bayesmotion.inference.diagnostics import arviz_without_numba, save_netcdf, to_inference_data
 from bayesmotion.inference.predictive import generate_posterior
 from bayesmotion.inference.target import Target
+from bayesmotion.model.generate import SAMPLE_MEMORY
 from bayesmotion.model.params import AR_KEY, STYLE_PREFIX, ar_coefficients, style_to_simplex
 from bayesmotion.model.predict import condition
 
@@ -125,13 +126,13 @@ class Posterior:
 
     def generate(self, emotion="neutral", couple=None, n_frames=100, n_samples=0, start=None,
                  seed=0, n_draws: int = 16, client=None, workers: int | None = None,
-                 **styles):
+                 sample_memory: int = SAMPLE_MEMORY, **styles):
         """Posterior-predictive generation; see
         :func:`bayesmotion.inference.predictive.generate_posterior` (``client`` or
-        ``workers``: the draws' rollouts as tasks on a Dask cluster; ``sample_memory`` and
-        any other style factor as in :meth:`bayesmotion.FittedHGPDM.generate`)."""
+        ``workers``: the draws' rollouts as tasks on a Dask cluster; ``sample_memory`` as in
+        :meth:`bayesmotion.FittedHGPDM.generate`)."""
         return generate_posterior(self, emotion, couple, n_frames, n_samples, start, seed,
-                                  n_draws, client, workers, **styles)
+                                  n_draws, client, workers, sample_memory, **styles)
 
 
 def _constrain(p: dict) -> dict:

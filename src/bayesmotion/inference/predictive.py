@@ -18,14 +18,20 @@ from dataclasses import replace
 import numpy as np
 
 from bayesmotion.model.distributed import dask_client, model_bytes, worker_model
-from bayesmotion.model.generate import check_decodes, generate
+from bayesmotion.model.generate import (
+    SAMPLE_MEMORY,
+    check_decodes,
+    check_sample_memory,
+    generate,
+)
 from bayesmotion.model.predict import condition
 
 SPACES = ("I", "X", "Y", "angles", "positions")
 
 
 def generate_posterior(post, emotion="neutral", couple=None, n_frames=100, n_samples=0,
-                       start=None, seed=0, n_draws=16, client=None, workers=None, **styles):
+                       start=None, seed=0, n_draws=16, client=None, workers=None,
+                       sample_memory=SAMPLE_MEMORY, **styles):
     """Rollouts for ``n_draws`` evenly spaced posterior draws, combined into one Rollout.
 
     The returned Rollout's means are averages over draws; ``*_var`` hold the total variance
@@ -34,20 +40,24 @@ def generate_posterior(post, emotion="neutral", couple=None, n_frames=100, n_sam
     Draw k's rollout is seeded ``seed + k`` wherever it runs: with ``client`` (a
     ``dask.distributed.Client``, kept open) or ``workers`` (a ``LocalCluster`` of that many
     processes, closed at the end) each draw is a task on the cluster, and the answer equals the
-    one computed here.
+    one computed here. ``sample_memory`` and ``styles`` as in
+    :meth:`bayesmotion.FittedHGPDM.generate`.
     """
+    check_sample_memory(sample_memory, n_samples)
     check_decodes(post.model)  # before any draw's model is conditioned
     idx = np.linspace(0, post.n_draws - 1, min(n_draws, post.n_draws)).astype(int)
     if client is None and workers is None:
         rolls = [generate(post.model, emotion, couple, n_frames, n_samples, start, seed + k,
-                          predictor=post.predictor(int(i)), **styles)
+                          predictor=post.predictor(int(i)), sample_memory=sample_memory,
+                          **styles)
                  for k, i in enumerate(idx)]
     else:
         # checked here (the same errors as above, before any task is sent)
         generate(post.model, emotion, couple, post.model.spec.order + 1, 0, start, seed,
                  predictor=post.predictor(int(idx[0])), **styles)
         rolls = _generate_on_cluster(post, idx, client, 2 if workers is None else workers,
-                                     (emotion, couple, n_frames, n_samples, start), seed, styles)
+                                     (emotion, couple, n_frames, n_samples, start), seed,
+                                     {**styles, "sample_memory": sample_memory})
     parts, fields = {}, {}
     for s in SPACES:
         means = np.stack([getattr(r, s) for r in rolls])

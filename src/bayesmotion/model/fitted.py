@@ -187,9 +187,9 @@ class FittedHGPDM:
                 at the first frame, the first of equally long ones),
                 ``"prior"`` (zero latent state), or an (order, Q_I) latent array.
             seed: PRNG seed of the samples.
-            sample_memory: steps of its own path each step of a sampled rollout is conditioned
-                on besides the training data, as if the path so far were training data (0:
-                each step drawn given the training data alone).
+            sample_memory: steps of its own path (at most 256) each step of a sampled rollout
+                is conditioned on besides the training data, as if they were training data (0:
+                each step drawn given the training data alone); only with ``n_samples`` > 0.
             **styles: values for any other style factor of the model.
         Returns:
             a :class:`bayesmotion.model.rollout.Rollout`.

@@ -152,8 +152,10 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
 
 def _path_sampled_rollout(P: Predictor, I0, styles, keys, memory: int):
     """A sampled rollout whose every step is drawn given the training data *and* the last
-    ``memory`` steps of its own path (inputs and drawn values), as if the path so far were
-    training data of the dynamics GP (the sampled function stays one function along the path).
+    ``memory`` steps of its own path (inputs and drawn values), as if they were training data of
+    the dynamics GP: within those steps the sampled function is one function, and a rollout of
+    at most ``memory`` steps is a draw of the GP's joint distribution along its path (given the
+    fitted parameters); older steps are forgotten (a sliding window).
 
     Drawn independently, each step's deviation from the mean is white noise; once a path leaves
     the training latents its predictive variance approaches the kernel's signal variance and the
@@ -297,6 +299,19 @@ DIVERGED = 100.0
 SAMPLE_MEMORY = 0
 """Steps of its own path each step of a sampled rollout is conditioned on (0: independent
 draws given the training data alone); see :func:`_path_sampled_rollout`."""
+MAX_SAMPLE_MEMORY = 256
+"""The largest ``sample_memory``: each sampled step factors a (W x W) matrix, O(W^3)."""
+
+
+def check_sample_memory(sample_memory, n_samples) -> int:
+    """``sample_memory`` as an int in [0, MAX_SAMPLE_MEMORY], refused with rollouts that draw no
+    samples (it would change nothing)."""
+    w = integer(sample_memory, "sample_memory", low=0, high=MAX_SAMPLE_MEMORY)
+    if w and not n_samples:
+        raise BayesmotionError(f"sample_memory={w} conditions sampled rollouts on their path, "
+                               f"but n_samples is 0: ask for samples (n_samples > 0) or leave "
+                               f"sample_memory at 0")
+    return w
 
 
 def check_bounded(I: np.ndarray, I_train: np.ndarray, dynamics_linear: str) -> None:
@@ -332,7 +347,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
     """Generate a rollout; see :meth:`FittedHGPDM.generate`."""
     check_generate_args(n_frames, n_samples, seed, {"emotion": emotion, "couple": couple,
                                                     **styles})
-    sample_memory = integer(sample_memory, "sample_memory", low=0)
+    sample_memory = check_sample_memory(sample_memory, n_samples)
     check_generate_memory(n_frames, n_samples,
                           sum(model.skeleton(a).n_joints for a in range(model.n_actors)),
                           model.predictor_rows, model.n_actors + 2, sample_memory)
