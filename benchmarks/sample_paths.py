@@ -37,6 +37,7 @@ if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
 from _common import BANDAI_ROOT, bandai_present, headline, standalone_main  # noqa: E402
+from synthesis import joint_speed  # noqa: E402
 
 NAME = "sample_paths"
 MEMORIES = (0, 16, 64)
@@ -46,11 +47,6 @@ FULL = {"groups": {"walks": ("walk", "walk-back", "walk-left", "walk-right"),
         "timed_frames": 200}
 QUICK = {"groups": {"gesture": ("bye",)}, "fps": 10.0, "max_iter": 60, "n_samples": 2,
          "long_frames": 300, "long_samples": 1, "timed_frames": 50}
-
-
-def _limb_speed(angles: np.ndarray) -> np.ndarray:
-    d = np.diff(angles[:, 6:], axis=0)
-    return np.abs((d + 180.0) % 360.0 - 180.0).mean(-1)
 
 
 def _span(per_memory: dict) -> str:
@@ -106,7 +102,7 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
                 for e in model.levels["emotion"]:
                     roll = generate(model, emotion=e, n_frames=cfg["long_frames"],
                                     n_samples=cfg["long_samples"], seed=0, sample_memory=mem)
-                    sp = [_limb_speed(roll.to_motion(s)[0].values)
+                    sp = [joint_speed(roll.to_motion(s)[0].values)
                           for s in range(cfg["long_samples"])]
                     long[e] = {"latent_range": float(np.abs(roll.samples["I"]).max() / I_range),
                                "limb_motion_last_over_first": [
