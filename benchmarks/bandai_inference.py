@@ -28,10 +28,9 @@ bow, bye, byebye, guide) through the walk model, calibrated on the folds (``fore
 with the same projection starts.
 The JSON goes to ``results/bandai_inference.json`` (``results/bandai_inference_all.json``;
 ``--start-jitter SD``, each level projection started from jittered nearest-frame latents:
-``results/bandai_inference_jittered.json``, whose other actions were read from unjittered
-starts; ``--level-starts K --start-jitter SD``, each level projected from its nearest-frame
-latents and K - 1 jittered copies: ``results/bandai_inference_startsK.json``, the jitter in its
-``settings``).
+``results/bandai_inference_jittered.json``; ``--level-starts K --start-jitter SD``, each level
+projected from its nearest-frame latents and K - 1 jittered copies:
+``results/bandai_inference_startsK.json``, the jitter in its ``settings``).
 
 Current result (``results/bandai_inference.json``, full settings): ``["result"]["accuracy"]``
 0.8125 (13/16), one of the wrong walks out of distribution (its probabilities the flat prior,
@@ -44,7 +43,7 @@ All 40 clips (``results/bandai_inference_all.json``): 0.425 (17/40) against 0.52
 affective features and 0.45 for relative strength; ECE 0.55 plain (28% wrong with
 P >= 0.99), 0.08 with the recording effect (90% label sets of 3.9 levels on average); a median
 57.5 s per clip. From jittered level starts (``results/bandai_inference_jittered.json``,
-``--start-jitter 0.02``): 13/16 as well, ECE 0.24 plain and 0.19 with the recording effect.
+``--start-jitter 0.02``): 13/16 as well, ECE 0.16 plain and 0.21 with the recording effect.
 With three starts per level (``results/bandai_inference_starts3.json``, ``--level-starts 3
 --start-jitter 0.02``): 15/16 (93.8%), ECE 0.11 plain and 0.16 with the recording effect, 90%
 label sets covering 15/16, no wrong answer with P >= 0.99, 42.4 s per clip (with another
