@@ -134,11 +134,10 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
         new = mean[0] + jnp.sqrt(v) * jax.random.normal(k, mean[0].shape)
         return jnp.concatenate([new[None], lags[:-1]], axis=0), (new, v)
 
-    if sample and memory > 0:
-        keys = jax.random.split(key, n_steps)
-        return _path_sampled_rollout(P, I0, styles, keys, min(memory, n_steps))
     if sample:
         keys = jax.random.split(key, n_steps)
+        if memory > 0:
+            return _path_sampled_rollout(P, I0, styles, keys, min(memory, n_steps))
         _, (I, v) = jax.lax.scan(sample_step, I0[::-1], (tuple(styles), keys))
         return I, v
     _, I = jax.lax.scan(mean_step, I0[::-1], style_rows)
