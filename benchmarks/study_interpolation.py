@@ -28,8 +28,18 @@ logistic-regression classifier trained on the real walks of the *other* contents
 ``bayesmotion.emotion.infer.infer_emotion`` with the fitted H-GPDM where that exists; (b) by the Ho
 et
 al. ranking function (trained on the other contents) as raw strength and normalised so the
-source pair's real neutral clip scores 0 and its real emotional clip 1; (c) by the naturalness
-proxies of :mod:`bayesmotion.evaluation.naturalness` against all real walks at the same frame rate.
+source pair's real neutral clip scores 0 and its real emotional clip 1, and by its position
+along the real neutral -> emotional direction in standardised clip features (``FeatureAxis``,
+also 0 and 1 at the real clips); (c) by the naturalness proxies of
+:mod:`bayesmotion.evaluation.naturalness` against all real walks at the same frame rate.
+The ranking function reads keyframe poses and speeds, so it depends on where in the gait cycle a
+clip starts: ``phase_sensitivity`` scores windows of the real clips started 0, 8 and 16 frames
+in with both measures, and each method's summary says how far its s = 0 and s = 1 outputs
+score from the real clips (``*_vertex_error``). The H-GPDM's outputs also record how far their
+latents run from the training latents (``latent_distance``), and ``hgpdm_dynamics`` how far
+each emotion's dynamics is from the others' one step ahead (:func:`dynamics_cross_prediction`).
+``--init phase`` fits the H-GPDM from interaction latents on one gait-phase circle shared by
+every emotion (:func:`gait_phase`).
 
 Per method and pair the summary gives the Spearman correlation of normalised strength with s
 over [0, 1], the fraction of increasing steps, the calibration error mean |strength(s) - s|,
@@ -134,15 +144,30 @@ def summarise(outputs: list[dict]) -> dict:
         return {"error": "fewer than two scored outputs in [0, 1]"}
     st = np.array([by_s[s]["strength"]["normalised"] for s in inside])
     p = np.array([by_s[s]["classifier"]["p_target"] for s in inside])
+    ax = np.array([by_s[s]["feature_axis"] for s in inside])
     out = {
         "strength_spearman": spearman(inside, st),
         "strength_monotonicity": float(np.mean(np.diff(st) > 0)),
         "strength_calibration_error": float(np.mean(np.abs(st - np.array(inside)))),
         "strength_normalised": st.tolist(),
+        "feature_axis": ax.tolist(),
+        "axis_spearman": spearman(inside, ax),
+        "axis_monotonicity": float(np.mean(np.diff(ax) > 0)),
+        "axis_calibration_error": float(np.mean(np.abs(ax - np.array(inside)))),
         "classifier_p_target": p.tolist(),
         "classifier_spearman": spearman(inside, p),
         "classifier_p_target_at_1": by_s.get(1.0, {}).get("classifier", {}).get("p_target"),
     }
+    if inside[0] == 0.0 and inside[-1] == 1.0:  # how far each end is from its real clip
+        out["strength_vertex_error"] = float((abs(st[0]) + abs(st[-1] - 1.0)) / 2)
+        out["axis_vertex_error"] = float((abs(ax[0]) + abs(ax[-1] - 1.0)) / 2)
+    dist = {s: by_s[s]["latent_distance"] for s in inside if "latent_distance" in by_s[s]}
+    if dist:
+        ends = [v for s, v in dist.items() if s in (0.0, 1.0)]
+        mixed = [v for s, v in dist.items() if 0.0 < s < 1.0]
+        if ends and mixed:
+            out["latent_distance_vertices"] = float(np.mean(ends))
+            out["latent_distance_mixed"] = float(np.mean(mixed))
     if 1.25 in by_s and 1.0 in by_s:
         out["extrapolation_gain"] = (by_s[1.25]["strength"]["normalised"]
                                      - by_s[1.0]["strength"]["normalised"])
@@ -181,8 +206,113 @@ def training_set(data: MotionDataset, cfg: Settings) -> MotionDataset:
 def fit_hgpdm(train: MotionDataset, cfg: Settings):
     spec = HGPDM(latent_dim=cfg.latent_dim, interaction_dim=cfg.interaction_dim,
                  interaction_factors=("emotion",), dynamics_factors=("emotion",))
+    init = phase_init(spec, train, cfg.seed) if cfg.latent_init == "phase" else cfg.latent_init
     return spec.fit(train, max_iter=cfg.max_iter, seed=cfg.seed, progress=False,
-                    optimize_style=cfg.optimize_style, init=cfg.latent_init)
+                    optimize_style=cfg.optimize_style, init=init)
+
+
+def dynamics_cross_prediction(model, train: MotionDataset) -> dict:
+    """Each emotion level's dynamics one step ahead along every training trial's own latent
+    trajectory I: the mean error of the predictive mean and the predicted RMS error
+    sqrt(Q_I (var + noise)) (latent function and dynamics noise; the expected error norm of a
+    calibrated prediction), both per mean step length |I_t - I_{t-1}| of that trajectory, so
+    predicting no move at all scores 1. On a trial of its own level a dynamics reproduces the
+    step it was fitted to; on the other levels' trials it says how far apart the levels' flows
+    are where a rollout at mixed coordinates runs, and whether the model knows it."""
+    import jax.numpy as jnp
+
+    from bayesmotion.model.layers import DynamicsIndex
+    from bayesmotion.model.predict import noise_variances, predict_dynamics, style_vectors
+
+    P = model.predictor()
+    levels = list(model.levels["emotion"])
+    o = model.spec.order
+    index = DynamicsIndex(model.data.lengths, o)
+    I_all = np.asarray(model.params["I"])
+    noise = float(noise_variances(P)["I"])
+    q = I_all.shape[1]
+    rows = []
+    for r, t in enumerate(train):
+        keep = index.trial_of_frame[index.out] == r
+        lags = jnp.asarray(np.stack([I_all[lag[keep]] for lag in index.lag]))
+        nxt = I_all[index.out[keep]]
+        step = float(np.linalg.norm(nxt - np.asarray(lags[0]), axis=1).mean())
+        for k, level in enumerate(levels):
+            onehot = np.tile(np.eye(len(levels))[k], (nxt.shape[0], 1))
+            mean, var = predict_dynamics(P, lags, style_vectors(P, ["emotion"], [onehot]))
+            rows.append({"trial": t.name, "level": level, "own": level == t.labels["emotion"],
+                         "error_per_step": float(np.linalg.norm(np.asarray(mean) - nxt,
+                                                                axis=1).mean() / step),
+                         "predicted_rms_per_step": float(
+                             np.sqrt(q * (np.asarray(var) + noise)).mean() / step)})
+    out = {"noise_variance": noise, "rows": rows}
+    for which, own in (("own", True), ("other", False)):
+        sel = [x for x in rows if x["own"] == own]
+        out[f"{which}_error_per_step_median"] = float(np.median([x["error_per_step"] for x in sel]))
+        out[f"{which}_predicted_rms_per_step_median"] = float(
+            np.median([x["predicted_rms_per_step"] for x in sel]))
+    other = [x for x in rows if not x["own"]]
+    out["other_error_above_3x_predicted"] = float(np.mean(
+        [x["error_per_step"] > 3 * x["predicted_rms_per_step"] for x in other]))
+    return out
+
+
+def latent_distance(model, I: np.ndarray) -> float:
+    """Median over a rollout's generated frames of the distance from its latent to the nearest
+    training latent of any trial, per median training step length: how far from the data the
+    rollout runs (about 0 while it retraces a training trajectory)."""
+    I_train = np.asarray(model.params["I"])
+    o = model.spec.order
+    tof = np.asarray(model.data.trial_of_frame)
+    same = tof[1:] == tof[:-1]
+    step = float(np.median(np.linalg.norm(np.diff(I_train, axis=0)[same], axis=1)))
+    d = np.sqrt(((I[o:, None, :] - I_train[None]) ** 2).sum(-1)).min(1)
+    return float(np.median(d) / step)
+
+
+def gait_phase(motion: Motion) -> np.ndarray:
+    """Gait phase (T,) in radians: the angle of the analytic signal (Hilbert transform) of the
+    left foot's lead over the right along the body's facing direction (from the hips), linear
+    trend removed. The same phase means the same point of the stride in every clip."""
+    from scipy.signal import detrend, hilbert
+
+    from bayesmotion.features.pose import semantic_positions
+
+    p = semantic_positions(motion.positions(), motion.skeleton)
+    forward = np.cross(p["l_hip"] - p["r_hip"], np.array([0.0, 1.0, 0.0]))
+    forward /= np.linalg.norm(forward, axis=1, keepdims=True)
+    lead = np.sum((p["l_foot"] - p["r_foot"]) * forward, axis=1)
+    return np.angle(hilbert(detrend(lead)))
+
+
+def phase_init(spec: HGPDM, train: MotionDataset, seed: int) -> dict:
+    """The package's PCA start with the interaction latents I replaced by the gait-phase circle
+    (cos phi, sin phi, 0) of every frame (:func:`gait_phase`) plus the same 1e-3 jitter: every
+    emotion's walks start on one circle, aligned by stride."""
+    from bayesmotion.model.data import fit_codecs, prepare_data
+    from bayesmotion.model.fit import init_params, initial_ar
+    from bayesmotion.model.layers import DynamicsIndex
+    from bayesmotion.model.params import AR_KEY
+
+    spec = spec.resolved(train)
+    if spec.inducing is not None:
+        raise BayesmotionError("phase_init sets the dense model's latents only")
+    data = prepare_data(spec, train, fit_codecs(spec, train))
+    params = init_params(spec, data, seed)
+    phi = np.concatenate([gait_phase(t.actors[0]) for t in train])
+    circle = np.zeros((phi.size, spec.interaction_dim))
+    circle[:, 0], circle[:, 1] = np.cos(phi), np.sin(phi)
+    rng = np.random.default_rng(seed)
+    I = circle + 1e-3 * rng.standard_normal(circle.shape)
+    params["I"] = I
+    # what init_params derives from I: the dynamics' signal variance and noise precision, and
+    # the explicit autoregression's start
+    var_i = float(np.mean(I**2))
+    params["log_alpha"] = np.array(params["log_alpha"], dtype=np.float64)
+    params["log_alpha"][0], params["log_alpha"][-1] = np.log(var_i), np.log(100.0 / var_i)
+    if AR_KEY in params:
+        params[AR_KEY] = initial_ar(I, DynamicsIndex(data.lengths, spec.order))
+    return params
 
 
 def gen_hgpdm(model, train: MotionDataset, content: str, emotion: str, s: float,
@@ -194,7 +324,8 @@ def gen_hgpdm(model, train: MotionDataset, content: str, emotion: str, s: float,
     start = next(i for i, t in enumerate(train)
                  if t.labels["content"] == content and t.labels["emotion"] == dominant)
     roll = model.generate(emotion=coords, n_frames=cfg.gen_frames, start=start)
-    return roll.to_motion()[0], {"extrapolated": roll.extrapolated, "start": roll.start}
+    return roll.to_motion()[0], {"extrapolated": roll.extrapolated, "start": roll.start,
+                                 "latent_distance": latent_distance(model, roll.I)}
 
 
 def gen_fourier(neutral: Motion, emotional: Motion, s: float, cfg: Settings):
@@ -231,12 +362,39 @@ def gen_rbf(data: MotionDataset, content: str, emotion: str, s: float, cfg: Sett
 
 # --------------------------------------------------------------------------- scoring
 @dataclass(frozen=True, eq=False)
+class FeatureAxis:
+    """Emotion strength as the position along the real neutral -> emotional direction in clip
+    features: ``(f(m) - f(neutral)) . d / |d|^2`` with ``d = f(emotional) - f(neutral)``, each
+    feature divided by its spread over the other contents' real walks (``scale``). The real
+    neutral clip is 0 and the real emotional clip 1, as for the normalised ranking strength. The
+    clip features are statistics over the whole clip, so a motion's score depends far less on
+    where in its gait cycle it starts than the ranking strength, which reads keyframes
+    (``phase_sensitivity`` measures both)."""
+
+    scale: np.ndarray
+    origin: np.ndarray                       # f(neutral) / scale
+    direction: np.ndarray                    # (f(emotional) - f(neutral)) / scale
+
+    @classmethod
+    def fit(cls, others: np.ndarray, neutral: Motion, emotional: Motion) -> FeatureAxis:
+        scale = others.std(0)
+        scale = np.where(scale > 0, scale, 1.0)
+        origin = clip_features(neutral) / scale
+        return cls(scale, origin, clip_features(emotional) / scale - origin)
+
+    def strength(self, motion: Motion) -> float:
+        d = self.direction
+        return float((clip_features(motion) / self.scale - self.origin) @ d / (d @ d))
+
+
+@dataclass(frozen=True, eq=False)
 class Scorers:
     """Everything one content's outputs are scored with (fitted on the other contents)."""
 
     classifier: LogisticRegression
     strength: object
     anchors: tuple[float, float]            # raw strength of the real neutral, emotional clip
+    axis: FeatureAxis
     reference: NaturalnessReference
     model: object                            # the fitted H-GPDM, for infer_emotion
     cfg: Settings
@@ -264,6 +422,7 @@ def score(motion: Motion, target: str, sc: Scorers, infer: bool) -> dict:
                        "p_neutral": float(probs[classes.index(NEUTRAL)]),
                        "predicted": classes[int(np.argmax(probs))]},
         "strength": {"raw": raw, "normalised": (raw - r0) / (r1 - r0)},
+        "feature_axis": sc.axis.strength(motion),
         "naturalness": {k: nat[k] for k in NATURALNESS_KEYS},
         "infer_emotion": score_infer(motion, target, sc) if infer else "not run at this s",
     }
@@ -306,12 +465,38 @@ def fit_scorers(data: MotionDataset, content: str, emotion: str, reference, mode
     train = [t for t in data if t.labels["content"] != content] or list(data)
     motions = [t.actors[0] for t in train]
     labels = [t.labels["emotion"] for t in train]
-    clf = LogisticRegression().fit(np.stack([clip_features(m) for m in motions]), labels)
+    feats = np.stack([clip_features(m) for m in motions])
+    clf = LogisticRegression().fit(feats, labels)
     strength = fit_strength(motions, labels, neutral=NEUTRAL,
                             groups=[t.labels["content"] for t in train])
-    anchors = (strength.score(clip(data, content, NEUTRAL)),
-               strength.score(clip(data, content, emotion)))
-    return Scorers(clf, strength, anchors, reference, model, cfg, cache)
+    neutral, emotional = clip(data, content, NEUTRAL), clip(data, content, emotion)
+    anchors = (strength.score(neutral), strength.score(emotional))
+    axis = FeatureAxis.fit(feats, neutral, emotional)
+    return Scorers(clf, strength, anchors, axis, reference, model, cfg, cache)
+
+
+PHASE_OFFSETS = (0, 8, 16)
+"""Start frames of the real clips' windows in :func:`phase_sensitivity` (at 15 fps about half
+a stride and one stride apart)."""
+
+
+def phase_sensitivity(motion: Motion, sc: Scorers) -> dict:
+    """Both strength measures of windows of ``gen_frames`` frames (the H-GPDM's and Fourier's
+    output length) cut from one real clip at :data:`PHASE_OFFSETS`, and their spread
+    (max - min): the same recording started at another point of its gait cycle. A generated
+    clip whose timing drifts from the real clip's (the H-GPDM's rollouts, Fourier's blends)
+    moves its ranking strength by as much, without any change of emotion."""
+    n = sc.cfg.gen_frames
+    r0, r1 = sc.anchors
+    offsets = [o for o in PHASE_OFFSETS if o + n <= motion.n_frames]
+    wins = [motion.select(slice(o, o + n)) for o in offsets]
+    st = [(sc.strength.score(w) - r0) / (r1 - r0) for w in wins]
+    ax = [sc.axis.strength(w) for w in wins]
+    out = {"clip": motion.name, "offsets": offsets, "strength": st, "feature_axis": ax}
+    if len(wins) >= 2:
+        out["strength_spread"] = float(np.ptp(st))
+        out["feature_axis_spread"] = float(np.ptp(ax))
+    return out
 
 
 # --------------------------------------------------------------------------- the study
@@ -335,6 +520,8 @@ def study_pair(data, content, emotion, model, train, reference, cfg, cache) -> d
             "strength_anchors": {"neutral": sc.anchors[0], "emotion": sc.anchors[1]},
             "real": {"neutral": score_real(ctx["neutral"], emotion, sc),
                      "emotion": score_real(ctx["emotional"], emotion, sc)},
+            "phase_sensitivity": {"neutral": phase_sensitivity(ctx["neutral"], sc),
+                                  "emotion": phase_sensitivity(ctx["emotional"], sc)},
             "methods": {}}
     for method in METHODS:
         outputs = []
@@ -366,6 +553,22 @@ def aggregate(pairs: list[dict]) -> dict:
     return out
 
 
+def phase_summary(pairs: list[dict]) -> dict:
+    """Median and largest spread of each strength measure over the real clips' windows
+    (:func:`phase_sensitivity`), over every pair's neutral and emotional clip that is long
+    enough for two windows (``n_scorings``; a neutral clip is scored once per pair, against
+    that pair's anchors, so ``n_clips`` distinct clips)."""
+    clips = [p["phase_sensitivity"][k] for p in pairs for k in ("neutral", "emotion")
+             if "strength_spread" in p["phase_sensitivity"][k]]
+    out = {"offsets": list(PHASE_OFFSETS), "n_scorings": len(clips),
+           "n_clips": len({c["clip"] for c in clips})}
+    for key in ("strength_spread", "feature_axis_spread"):
+        v = [c[key] for c in clips]
+        out[f"{key}_median"] = float(np.median(v)) if v else None
+        out[f"{key}_max"] = float(np.max(v)) if v else None
+    return out
+
+
 def conclusion(summary: dict) -> str:
     ok = [m for m in METHODS if summary[m]["n_pairs"] and summary[m]["interpolates_emotion"]]
     rest = [m for m in METHODS if m not in ok and summary[m]["n_pairs"]]
@@ -387,10 +590,17 @@ def conclusion(summary: dict) -> str:
              f"body frame: {limbs}, {summary[limbs]['mean_jerk_local_ratio']:.2f})",
              f"least foot sliding: {slide} "
              f"(ratio {summary[slide]['mean_foot_sliding_ratio']:.2f})"]
+    axis = [m for m in scored if summary[m].get("axis_spearman") is not None]
+    if axis:
+        top = max(axis, key=lambda m: summary[m]["axis_spearman"])
+        parts.append("along the feature axis, Spearman " + ", ".join(
+            f"{m} {summary[m]['axis_spearman']:.2f}" for m in axis)
+            + f" (highest: {top})")
     return "; ".join(parts) + "."
 
 
-def headlines(summary: dict) -> list[dict]:
+def headlines(summary: dict, phase: dict | None = None, dynamics: dict | None = None
+              ) -> list[dict]:
     rows = []
     for m in METHODS:
         s = summary[m]
@@ -402,7 +612,28 @@ def headlines(summary: dict) -> list[dict]:
             f">= {CRITERIA['spearman_min']}", s["strength_spearman"] >= CRITERIA["spearman_min"],
             f"calibration error {s['strength_calibration_error']:.2f}, monotone "
             f"{s['strength_monotonicity']:.2f}, jerk ratio {s['mean_jerk_ratio']:.2f}, "
-            f"foot sliding ratio {s['mean_foot_sliding_ratio']:.2f}"))
+            f"foot sliding ratio {s['mean_foot_sliding_ratio']:.2f}; feature axis: Spearman "
+            f"{s['axis_spearman']:.2f}, monotone {s['axis_monotonicity']:.2f}, calibration "
+            f"error {s['axis_calibration_error']:.2f}"))
+    if phase and phase.get("n_clips"):
+        rows.append(headline(
+            "real clips: spread of the normalised strength over windows started "
+            f"{'/'.join(map(str, phase['offsets']))} frames in (median)",
+            phase["strength_spread_median"], "", "", None,
+            f"largest {phase['strength_spread_max']:.2f}; feature axis: median "
+            f"{phase['feature_axis_spread_median']:.2f}, largest "
+            f"{phase['feature_axis_spread_max']:.2f}; {phase['n_scorings']} scorings of "
+            f"{phase['n_clips']} clips"))
+    if dynamics:
+        rows.append(headline(
+            "hgpdm: one-step error of each emotion's dynamics on the other emotions' training "
+            "trajectories (median, per step; no move: 1)",
+            dynamics["other_error_per_step_median"], "", "", None,
+            f"predicted RMS error {dynamics['other_predicted_rms_per_step_median']:.3f} per "
+            f"step; error above 3x predicted in "
+            f"{100 * dynamics['other_error_above_3x_predicted']:.0f}%; on its own trials "
+            f"{dynamics['own_error_per_step_median']:.1e}; dynamics noise variance "
+            f"{dynamics['noise_variance']:.1e}"))
     return rows
 
 
@@ -415,17 +646,19 @@ def markdown_table(result: dict) -> str:
         return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else fmt.format(v)
 
     head = ("| method | pairs | Spearman(strength, s) | monotone steps | calibration error "
+            "| Spearman(axis, s) | axis calibration error "
             "| gain 1 -> 1.25 | classifier p(target) at s = 1 | Spearman(p, s) | jerk / real "
             "| foot sliding / real | interpolates the emotion |")
-    rows = [head, "|" + "---|" * 11]
+    rows = [head, "|" + "---|" * 13]
     for m in result["methods"]:
         a = result["summary"][m]
         if not a.get("n_pairs"):
-            rows.append(f"| {m} | 0 |" + " - |" * 9)
+            rows.append(f"| {m} | 0 |" + " - |" * 11)
             continue
         rows.append(
             f"| {m} | {a['n_pairs']} | {f(a.get('strength_spearman'))} "
             f"| {f(a.get('strength_monotonicity'))} | {f(a.get('strength_calibration_error'))} "
+            f"| {f(a.get('axis_spearman'))} | {f(a.get('axis_calibration_error'))} "
             f"| {f(a.get('extrapolation_gain'), '{:+.2f}')} "
             f"| {f(a.get('classifier_p_target_at_1'))} | {f(a.get('classifier_spearman'))} "
             f"| {f(a.get('mean_jerk_ratio'))} | {f(a.get('mean_foot_sliding_ratio'))} "
@@ -461,6 +694,8 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
             print(f"[{NAME}] {c} neutral -> {e}: {pairs[-1]['seconds']:.0f} s", file=sys.stderr,
                   flush=True)
     summary = aggregate(pairs)
+    phase = {**phase_summary(pairs), "window_frames": cfg.gen_frames}
+    dynamics = dynamics_cross_prediction(model, train)
     result = {
         **base,
         "s_values": list(S_VALUES), "methods": list(METHODS), "criteria": CRITERIA,
@@ -468,11 +703,12 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
                  "hgpdm_training": [t.name for t in train],
                  "hgpdm_frames": int(sum(t.n_frames for t in train))},
         "hgpdm_fit": {k: v for k, v in model.diagnostics.items() if k != "trace"},
+        "hgpdm_dynamics": dynamics,
         "infer_emotion": ("not available" if _infer_emotion() is None
                           else f"run at s in {list(cfg.infer_s)} and on the real clips"
                           if cfg.infer_s else "available, not run (infer_s is empty)"),
-        "pairs": pairs, "summary": summary, "conclusion": conclusion(summary),
-        "headline": headlines(summary),
+        "pairs": pairs, "summary": summary, "phase_sensitivity": phase,
+        "conclusion": conclusion(summary), "headline": headlines(summary, phase, dynamics),
         "timing_s": {"hgpdm_fit": t_fit, "total": time.perf_counter() - t0},
         "status": "ok", "machine": machine_info(),
     }
@@ -482,9 +718,11 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
 
 def result_name(cfg: Settings) -> str:
     """The default result file's name: the study's, with the H-GPDM's variant appended
-    (``_learned_styles`` with ``--optimize-style``, ``_shared_latents`` with ``--init shared``)."""
+    (``_learned_styles`` with ``--optimize-style``, ``_shared_latents`` with ``--init shared``,
+    ``_phase_latents`` with ``--init phase``)."""
     return (NAME + ("_learned_styles" if cfg.optimize_style else "")
-            + ("_shared_latents" if cfg.latent_init == "shared" else ""))
+            + ("_shared_latents" if cfg.latent_init == "shared" else "")
+            + ("_phase_latents" if cfg.latent_init == "phase" else ""))
 
 
 def main(argv=None) -> int:
@@ -495,9 +733,10 @@ def main(argv=None) -> int:
     ap.add_argument("--max-iter", type=int, default=None, help="override the H-GPDM iterations")
     ap.add_argument("--optimize-style", action="store_true",
                     help="learn the emotions' style vectors in the H-GPDM fit")
-    ap.add_argument("--init", choices=("pca", "shared"), default="pca",
+    ap.add_argument("--init", choices=("pca", "shared", "phase"), default="pca",
                     help="the H-GPDM's latent initialisation (fit(init=...)); 'shared' starts "
-                         "every emotion's trials in one region of the interaction latents")
+                         "every emotion's trials in one region of the interaction latents, "
+                         "'phase' on one gait-phase circle (gait_phase)")
     ap.add_argument("--table", action="store_true",
                     help="print the markdown table of an existing result (--out or the default "
                          "results file) instead of running")

@@ -79,6 +79,32 @@ def test_quick_study_scores_every_method_at_every_s(bandai_root, tmp_path):
     assert amaya0["strength"]["normalised"] == pytest.approx(0.0, abs=1e-9)
     assert amaya0["classifier"]["p_target"] == pytest.approx(real0["classifier"]["p_target"])
     assert pair["real"]["emotion"]["strength"]["normalised"] == pytest.approx(1.0)
+    # the feature axis runs from the real neutral clip (0) to the real emotional clip (1)
+    assert pair["real"]["neutral"]["feature_axis"] == pytest.approx(0.0, abs=1e-12)
+    assert pair["real"]["emotion"]["feature_axis"] == pytest.approx(1.0)
+    assert amaya0["feature_axis"] == pytest.approx(0.0, abs=1e-9)
+    for method, block in pair["methods"].items():
+        s = block["summary"]
+        inside = [o["feature_axis"] for o in block["outputs"] if o["s"] <= 1]
+        assert s["feature_axis"] == pytest.approx(inside), method
+        assert s["axis_spearman"] == pytest.approx(study.spearman(study.S_VALUES[:5], inside))
+        assert s["axis_calibration_error"] == pytest.approx(
+            np.mean(np.abs(np.array(inside) - np.array(study.S_VALUES[:5]))))
+    # the real clips' windows: both measures per window, the spread is their range
+    for which in ("neutral", "emotion"):
+        ph = pair["phase_sensitivity"][which]
+        assert ph["offsets"] == list(study.PHASE_OFFSETS)
+        assert ph["strength_spread"] == pytest.approx(np.ptp(ph["strength"]))
+        assert ph["feature_axis_spread"] == pytest.approx(np.ptp(ph["feature_axis"]))
+    data = study.load_walks(bandai_root, study.QUICK.fps)  # the first window, scored directly
+    ref = study.NaturalnessReference.from_motions([t.actors[0] for t in data], study.QUICK.fps)
+    sc = study.fit_scorers(data, "walk", "happy", ref, None, study.QUICK, {})
+    n = study.QUICK.gen_frames
+    first = study.score(study.clip(data, "walk", "happy").select(slice(0, n)), "happy", sc,
+                        False)
+    assert ph["strength"][0] == pytest.approx(first["strength"]["normalised"])
+    assert ph["feature_axis"][0] == pytest.approx(first["feature_axis"])
+    assert saved["phase_sensitivity"]["n_clips"] == saved["phase_sensitivity"]["n_scorings"] == 2
     # one pair: the summary is that pair's; the verdict follows the criteria
     c = study.CRITERIA
     for method in study.METHODS:
@@ -89,7 +115,19 @@ def test_quick_study_scores_every_method_at_every_s(bandai_root, tmp_path):
             and agg["strength_monotonicity"] >= c["monotonicity_min"]
             and agg["strength_calibration_error"] <= c["calibration_error_max"])
         assert method in saved["conclusion"]
-    assert res["headline"] and len(res["headline"]) == len(study.METHODS)
+    assert len(res["headline"]) == len(study.METHODS) + 2  # real windows, H-GPDM dynamics
+    dyn = saved["hgpdm_dynamics"]
+    assert {r["trial"] for r in dyn["rows"]} == {t.name for t in study.training_set(
+        data, study.QUICK)} and len(dyn["rows"]) == 2 * 2  # 2 trials x 2 levels
+    for r in dyn["rows"]:
+        assert _finite(r["error_per_step"]) and r["predicted_rms_per_step"] > 0
+    for o in pair["methods"]["hgpdm"]["outputs"]:
+        assert _finite(o["latent_distance"]) and o["latent_distance"] >= 0
+    h = pair["methods"]["hgpdm"]["summary"]
+    assert h["latent_distance_mixed"] == pytest.approx(np.mean(
+        [o["latent_distance"] for o in pair["methods"]["hgpdm"]["outputs"] if 0 < o["s"] < 1]))
+    assert h["axis_vertex_error"] == pytest.approx(
+        (abs(h["feature_axis"][0]) + abs(h["feature_axis"][-1] - 1)) / 2)
     table = study.markdown_table(saved).splitlines()
     assert len(table) == 2 + len(study.METHODS) + 2  # header, rule, methods, blank, conclusion
     for method, row in zip(study.METHODS, table[2:], strict=False):
@@ -107,3 +145,66 @@ def test_the_readme_table_is_the_committed_full_study_output():
     result = json.loads(path.read_text())
     assert result["mode"] == "full", "the committed study result must come from a full run"
     assert study.markdown_table(result) in (root / "docs" / "results.md").read_text()
+
+
+def test_gait_phase_advances_once_per_stride_on_a_real_walk(bandai_root):
+    """The phase of a real walk runs forward at a walking cadence, on the whole clip and on the
+    model's cropped trials, and phase 0 / pi is the left / right foot leading; the phase start
+    puts every frame's interaction latents on the unit circle at that phase."""
+    from bayesmotion.features.pose import semantic_positions
+
+    data = study.load_walks(bandai_root, 15.0)
+    walk = study.clip(data, "walk", "neutral")
+    strides = np.diff(np.unwrap(study.gait_phase(walk))) * walk.fps / (2 * np.pi)  # per second
+    assert np.mean(strides > 0) > 0.9
+    assert 0.4 < np.median(strides) < 2.5                 # 0.4-2.5 strides per second
+    cfg = study.Settings(contents=("walk", "walk-left"), emotions=("happy",))
+    train = study.training_set(data, cfg)
+    for t in train:
+        m = t.actors[0]
+        phi = study.gait_phase(m)
+        assert np.mean(np.diff(np.unwrap(phi)) > 0) > 0.9, t.name
+        p = semantic_positions(m.positions(), m.skeleton)
+        fwd = np.cross(p["l_hip"] - p["r_hip"], [0.0, 1.0, 0.0])
+        lead = np.sum((p["l_foot"] - p["r_foot"]) * fwd, 1)
+        assert np.all(lead[np.abs(phi) < 0.5] > 0) and np.all(lead[np.abs(phi) > 2.6] < 0)
+    spec = study.HGPDM(latent_dim=cfg.latent_dim, interaction_dim=cfg.interaction_dim,
+                       interaction_factors=("emotion",), dynamics_factors=("emotion",))
+    params = study.phase_init(spec, train, 0)
+    I = params["I"]
+    phi = np.concatenate([study.gait_phase(t.actors[0]) for t in train])
+    assert I.shape == (phi.size, cfg.interaction_dim)
+    np.testing.assert_allclose(np.linalg.norm(I[:, :2], axis=1), 1.0, atol=5e-3)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (np.arctan2(I[:, 1], I[:, 0]) - phi))), 0.0,
+                               atol=1e-2)
+    assert np.abs(I[:, 2]).max() < 5e-3
+    assert params["log_alpha"][0] == pytest.approx(np.log(np.mean(I**2)))
+
+
+@pytest.mark.slow
+def test_dynamics_cross_prediction_and_the_phase_start_on_a_short_fit(bandai_root):
+    """One row of dynamics_cross_prediction recomputed by hand from the trial's latents (lags
+    I_{t-1}, I_{t-2}); a fit from the phase start runs and names its result file."""
+    from dataclasses import replace
+
+    from bayesmotion.model.predict import predict_dynamics, style_vectors
+
+    data = study.load_walks(bandai_root, 15.0)
+    cfg = replace(study.QUICK, max_iter=3, latent_init="phase")
+    assert study.result_name(cfg) == "study_interpolation_phase_latents"
+    train = study.training_set(data, cfg)
+    model = study.fit_hgpdm(train, cfg)
+    out = study.dynamics_cross_prediction(model, train)
+    I = model.latents(0)["I"]
+    o = model.spec.order
+    lags = np.stack([I[o - 1 - k:len(I) - 1 - k] for k in range(o)])
+    levels = list(model.levels["emotion"])
+    P = model.predictor()
+    for level in levels:
+        onehot = np.tile(np.eye(len(levels))[levels.index(level)], (len(I) - o, 1))
+        mean, _ = predict_dynamics(P, lags, style_vectors(P, ["emotion"], [onehot]))
+        want = (np.linalg.norm(np.asarray(mean) - I[o:], axis=1).mean()
+                / np.linalg.norm(I[o:] - I[o - 1:-1], axis=1).mean())
+        (row,) = [r for r in out["rows"] if r["trial"] == train[0].name and r["level"] == level]
+        assert row["error_per_step"] == pytest.approx(want, rel=1e-9)
+        assert row["own"] == (level == train[0].labels["emotion"])
