@@ -118,6 +118,19 @@ def _fmt(v) -> str:
     return str(v)
 
 
+def jax_versions(results: dict[str, dict]) -> str:
+    """The jax version the results were measured with: the most common one, then each other
+    version with the results it measured (e.g. "jax 0.9.2 (jax 0.10.2: study_interpolation)")."""
+    by_version: dict[str, list[str]] = {}
+    for name, r in results.items():
+        by_version.setdefault(str(r.get("machine", {}).get("jax", "?")), []).append(name)
+    if not by_version:
+        return "jax ?"
+    order = sorted(by_version, key=lambda v: -len(by_version[v]))
+    rest = "; ".join(f"jax {v}: {', '.join(by_version[v])}" for v in order[1:])
+    return f"jax {order[0]}" + (f" ({rest})" if rest else "")
+
+
 def readme(results: dict[str, dict]) -> str:
     lines = ["# Benchmark results", "",
              "Written by `python benchmarks/run_all.py` (do not edit by hand). One JSON file per "
@@ -131,7 +144,7 @@ def readme(results: dict[str, dict]) -> str:
     m = any_r.get("machine", {})
     blas = sorted({str(r.get("machine", {}).get("thread_env", {}).get("OPENBLAS_NUM_THREADS"))
                    for r in results.values()})
-    lines += [f"Python {m.get('python', '?')}, jax {m.get('jax', '?')}, numpy "
+    lines += [f"Python {m.get('python', '?')}, {jax_versions(results)}, numpy "
               f"{m.get('numpy', '?')}; float64 on CPU; OPENBLAS_NUM_THREADS={'/'.join(blas)} "
               "(None = OpenBLAS default; blas_threads compares both). Timings are wall-clock "
               "medians after warm-up; other processes may share the cores (each JSON records "

@@ -40,3 +40,11 @@ def test_docs_flag_and_its_readme_alias(monkeypatch):
     monkeypatch.setattr(run_all, "write_readme", lambda: calls.append(1))
     assert run_all.main(["--docs"]) == 0 and run_all.main(["--readme"]) == 0
     assert calls == [1, 1]
+
+
+def test_the_header_names_every_jax_version_and_its_results():
+    m = lambda v: {"machine": {"jax": v}}  # noqa: E731
+    assert run_all.jax_versions({"a": m("0.9.2"), "b": m("0.9.2")}) == "jax 0.9.2"
+    assert run_all.jax_versions({"a": m("0.9.2"), "b": m("0.10.2"), "c": m("0.9.2")}) == \
+        "jax 0.9.2 (jax 0.10.2: b)"
+    assert run_all.jax_versions({"a": {}}) == "jax ?"
