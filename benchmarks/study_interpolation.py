@@ -272,7 +272,7 @@ def latent_distance(model, I: np.ndarray) -> float:
 
 def gait_phase(motion: Motion) -> np.ndarray:
     """Gait phase (T,) in radians: the angle of the analytic signal (Hilbert transform) of the
-    left foot's lead over the right along the body's facing direction (from the hips), linear
+    left foot's lead over the right along the body's facing direction (from the hips, y up), linear
     trend removed. The same phase means the same point of the stride in every clip."""
     from scipy.signal import detrend, hilbert
 
