@@ -261,12 +261,16 @@ def latent_distance(model, I: np.ndarray) -> float:
     """Median over a rollout's generated frames of the distance from its latent to the nearest
     training latent of any trial, per median training step length: how far from the data the
     rollout runs (about 0 while it retraces a training trajectory)."""
+    import jax.numpy as jnp
+
+    from bayesmotion.gp.kernels import sqdist
+
     I_train = np.asarray(model.params["I"])
     o = model.spec.order
     tof = np.asarray(model.data.trial_of_frame)
     same = tof[1:] == tof[:-1]
     step = float(np.median(np.linalg.norm(np.diff(I_train, axis=0)[same], axis=1)))
-    d = np.sqrt(((I[o:, None, :] - I_train[None]) ** 2).sum(-1)).min(1)
+    d = np.sqrt(np.asarray(sqdist(jnp.asarray(I[o:]), jnp.asarray(I_train))).min(1))
     return float(np.median(d) / step)
 
 
