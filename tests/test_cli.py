@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+import bayesmotion as bm
 from bayesmotion.app.cli import main
 from tests._browser import browser_check
 
@@ -71,6 +72,11 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     assert main(["generate", str(model), "--emotion", "happy", "--frames", "12", "--samples",
                  "1", "--sample-memory", "8", "--out", str(tmp_path / "gen_path")]) == 0
     assert len(list((tmp_path / "gen_path").glob("*.bvh"))) == 4
+    assert main(["generate", str(model), "--emotion", "happy", "--frames", "12", "--samples",
+                 "1", "--pin-feet", "--out", str(tmp_path / "gen_pinned")]) == 0
+    pinned = bm.load_rollout(tmp_path / "gen_pinned" / "happy_rollout.npz")
+    plain = tiny_model.generate(emotion="happy", n_frames=12, n_samples=1).pin_feet()
+    np.testing.assert_allclose(pinned.angles, plain.angles, atol=1e-6)
     assert "--sample-memory must be an integer in [0, 256]" in one_line_error(
         capsys, ["generate", str(model), "--sample-memory", "-1", "--out", str(tmp_path)])
     assert "n_samples is 0" in one_line_error(

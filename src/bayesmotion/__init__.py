@@ -29,6 +29,7 @@ from bayesmotion.emotion.evidence import calibrate_evidence
 from bayesmotion.emotion.infer import infer_emotion, infer_online
 from bayesmotion.emotion.result import EmotionPosterior
 from bayesmotion.errors import BayesmotionError, BVHError, ModelFileError, SkeletonMismatchError
+from bayesmotion.features.contacts import pin_feet
 from bayesmotion.inference.posterior import Posterior
 from bayesmotion.inference.sample import sample_posterior
 from bayesmotion.model.fitted import FittedHGPDM
@@ -43,8 +44,8 @@ __all__ = [
     "EmotionStyle", "FittedHGPDM", "ModelFileError", "Motion", "MotionDataset", "PoseCodec",
     "Posterior", "Priors", "Rollout", "Skeleton", "SkeletonMismatchError", "Transition", "Trial",
     "apply_emotion", "calibrate_evidence", "canonical_side", "datasets", "forward_kinematics",
-    "infer_emotion", "infer_many", "infer_online", "load", "load_rollout", "mirror", "reframe",
-    "rest_frames",
+    "infer_emotion", "infer_many", "infer_online", "load", "load_rollout", "mirror", "pin_feet",
+    "reframe", "rest_frames",
     "load_bandai", "load_cmu_handshake", "load_handshakes", "parse_bvh", "read_bvh",
     "sample_posterior", "write_bvh",
 ]

@@ -146,6 +146,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="steps of its own path each step of a sampled rollout is conditioned on, "
                         f"at most {MAX_SAMPLE_MEMORY} (0: each step given the training data "
                         f"alone; default {SAMPLE_MEMORY}); needs --samples")
+    g.add_argument("--pin-feet", action="store_true",
+                   help="correct each actor's root path so planted feet do not glide "
+                        "(bayesmotion.features.contacts.pin_feet)")
     g.add_argument("--out", required=True)
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--gif", action="store_true", help="also write an animated GIF")
@@ -335,6 +338,8 @@ def _cmd_generate(a):
                                f"({m.spec.order}), got {a.frames}")
     r = m.generate(emotion=emotion, couple=a.couple, n_frames=a.frames,
                    n_samples=a.samples, seed=a.seed, sample_memory=a.sample_memory)
+    if a.pin_feet:
+        r = r.pin_feet()
     tag = a.emotion.replace(",", "_")
     paths = r.write_bvh(out, prefix=tag)
     for k in range(a.samples):

@@ -26,16 +26,13 @@ jerk_ratio               --      jerk / the reference clips' (with a reference o
 jerk_local_ratio         --      jerk_local / the reference clips' (with a reference only)
 =======================  ======  ===========================================================
 
-**Contacts.** A foot is in contact where its ankle or toe is within ``contact_height`` (L) of
-that joint's lowest height in the clip, the rule of
-:func:`~bayesmotion.features.movement.foot_contacts` *without* its speed gate
-(``contact_speed=inf``): a speed gate would hide exactly the sliding measured here. Without the
-gate the height threshold must be tighter than that module's 0.1 L: a swinging toe clears the
-floor by only 0.05-0.15 L in the Bandai walks, so the default is ``CONTACT_HEIGHT`` = 0.03 L
-(about 2.5 cm). The contact point is whichever of ankle and toe is nearer its own floor height
-in that frame (the heel at heel strike, the toe at push-off), and sliding is that joint's
-horizontal speed. Real walks score 0.2-0.9 L/s (30 fps), mostly from the frames around heel
-strike and toe-off, so compare motions through ``foot_sliding_ratio``.
+**Contacts** are those of :mod:`bayesmotion.features.contacts`: a foot is in contact where its
+ankle or toe is within ``contact_height`` (L, default ``CONTACT_HEIGHT`` = 0.03 L, about 2.5 cm)
+of that joint's lowest height in the clip, with no speed gate (a speed gate would hide exactly
+the sliding measured here). The contact point is whichever of ankle and toe is nearer its own
+floor height in that frame (the heel at heel strike, the toe at push-off), and sliding is that
+joint's horizontal speed. Real walks score 0.2-0.9 L/s (30 fps), mostly from the frames around
+heel strike and toe-off, so compare motions through ``foot_sliding_ratio``.
 
 **Joint angles** (``ANGLE_NAMES``) come from positions, so they do not depend on the skeleton's
 Euler conventions and are invariant to translation, rotation and uniform scale:
@@ -68,12 +65,11 @@ import numpy as np
 
 from bayesmotion.data.motion import Motion
 from bayesmotion.errors import BayesmotionError
+from bayesmotion.features.contacts import CONTACT_HEIGHT, sliding_contacts, toe_leads
 from bayesmotion.features.joint_map import JointMap, Names
-from bayesmotion.features.movement import body_frame_pose, foot_contacts, leg_length
+from bayesmotion.features.movement import body_frame_pose, leg_length
 from bayesmotion.features.pose import angle, semantic_positions
 
-CONTACT_HEIGHT = 0.03
-"""Default contact threshold in leg lengths (module docstring)."""
 ANGLE_NAMES = (
     "l_elbow_flexion", "r_elbow_flexion", "l_knee_flexion", "r_knee_flexion",
     "l_shoulder_elevation", "r_shoulder_elevation", "l_hip_flexion", "r_hip_flexion",
@@ -121,13 +117,12 @@ def joint_angles(p: dict[str, np.ndarray]) -> np.ndarray:
 def sliding_speeds(p: dict[str, np.ndarray], fps: float, L: float,
                    contact_height: float = CONTACT_HEIGHT) -> tuple[np.ndarray, np.ndarray]:
     """Horizontal contact-point speed (T, 2) in L/s and the (T, 2) contacts (left, right)."""
-    contacts = foot_contacts(p, fps, L, contact_height, contact_speed=np.inf)
+    contacts = sliding_contacts(p, fps, L, contact_height)
     out = []
     for s in "lr":
-        h = {j: p[j][:, 1] - p[j][:, 1].min() for j in (f"{s}_foot", f"{s}_toe")}
         v = {j: np.linalg.norm(np.gradient(p[j][:, [0, 2]], axis=0), axis=-1) * fps / L
-             if len(p[j]) > 1 else np.zeros(len(p[j])) for j in h}
-        out.append(np.where(h[f"{s}_toe"] <= h[f"{s}_foot"], v[f"{s}_toe"], v[f"{s}_foot"]))
+             if len(p[j]) > 1 else np.zeros(len(p[j])) for j in (f"{s}_foot", f"{s}_toe")}
+        out.append(np.where(toe_leads(p, s), v[f"{s}_toe"], v[f"{s}_foot"]))
     return np.stack(out, axis=-1), contacts
 
 

@@ -20,7 +20,7 @@ refuse.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +29,7 @@ from bayesmotion._version import __version__
 from bayesmotion.data.bvh import format_bvh, parse_bvh, write_bvh
 from bayesmotion.data.motion import Motion
 from bayesmotion.errors import BayesmotionError, BVHError, ModelFileError
+from bayesmotion.features.contacts import GROUND, pin_offset, root_translation_columns
 from bayesmotion.model.archive import MAX_ABS, MAX_ARRAY_BYTES, open_archive, write_archive
 
 
@@ -99,6 +100,38 @@ class Rollout:
         z = norm.ppf(0.5 + q / 2)
         sd = np.sqrt(var)
         return mean - z * sd, mean + z * sd
+
+    def pin_feet(self, joint_map=None, **options) -> Rollout:
+        """A copy whose actors' root paths are corrected so that planted feet do not glide
+        (:func:`bayesmotion.features.contacts.pin_feet`), in the mean rollout and in every
+        sample; the samples' spread is taken again from the corrected samples.
+
+        Only each root's horizontal translation changes (``angles``' root X/Z position
+        columns and ``positions``); the predictive variances (``*_var``) are those of the
+        uncorrected rollout. ``joint_map`` and ``options`` (``contact_height``,
+        ``speed_scale``, ``smooth``) are the clean-up's.
+        """
+        cols = [root_translation_columns(sk) for sk in self.skeletons]
+
+        def fix(angles, positions):  # (A, T, C), (A, T, J, 3) of one rollout
+            angles, positions = np.array(angles, np.float64), np.array(positions, np.float64)
+            for a, sk in enumerate(self.skeletons):
+                off = pin_offset(positions[a], sk, self.fps, joint_map, **options)
+                angles[a][:, cols[a]] += off[:, GROUND]
+                positions[a] += off[:, None, :]
+            return angles, positions
+
+        angles, positions = fix(self.angles, self.positions)
+        samples, sample_var = self.samples, self.sample_var
+        if samples is not None:
+            fixed = [fix(a, p) for a, p in zip(samples["angles"], samples["positions"],
+                                                strict=True)]
+            samples = {**samples, "angles": np.stack([f[0] for f in fixed]),
+                       "positions": np.stack([f[1] for f in fixed])}
+            sample_var = {**(sample_var or {}), "angles": samples["angles"].var(0),
+                          "positions": samples["positions"].var(0)}
+        return replace(self, angles=angles, positions=positions, samples=samples,
+                       sample_var=sample_var)
 
     def save(self, path) -> Path:
         """Write the whole rollout (means, variances, samples, skeletons) to ``path``
