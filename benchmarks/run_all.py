@@ -46,6 +46,7 @@ BENCHMARKS = [
     "blas_threads",
     "study_interpolation",
     "synthesis",
+    "foot_contacts",
     "sample_paths",
     "bandai_inference",
     "infer_speed",

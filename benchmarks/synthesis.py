@@ -248,31 +248,51 @@ def natural_rate(judges, features: np.ndarray, labels: list[str], members) -> di
     return {"rate": float(np.mean(hits)), "n": len(hits)}
 
 
-def group_run(name: str, data: MotionDataset, contents: tuple, judges: dict,
-              full_judge: LogisticRegression, cfg: Settings) -> dict:
+def fit_group(name: str, data: MotionDataset, contents: tuple, cfg: Settings):
+    """The group's real clips (a dataset with emotion as its factor), its fitted one-actor
+    H-GPDM and the fit's seconds."""
     trials = [t for t in data if t.labels["content"] in contents]
     group = MotionDataset(tuple(trials), {"emotion": data.levels["emotion"]}, name=name)
     spec = HGPDM(rest_frames=True, canonical_side=True, interaction_factors=("emotion",),
                  dynamics_factors=("emotion",))
     t0 = time.perf_counter()
     model = spec.fit(group, max_iter=cfg.max_iter, seed=cfg.seed, progress=False)
-    fit_s = time.perf_counter() - t0
+    return group, model, time.perf_counter() - t0
+
+
+def generated(model, trials, cfg: Settings):
+    """Per real trial r: (r, trial, rollout or the generator's error): the rollout from the
+    trial's first frames at its emotion, as long as the trial, with ``n_samples`` samples."""
+    for r, t in enumerate(trials):
+        try:
+            yield r, t, model.generate(emotion=t.labels["emotion"], n_frames=t.n_frames,
+                                       n_samples=cfg.n_samples, start=r, seed=cfg.seed + r)
+        except BayesmotionError as err:
+            yield r, t, err
+
+
+def rollout_motions(roll, n_samples: int) -> dict:
+    """{"mean": [the mean rollout's motion], "sampled": [each sample's]} of actor 0."""
+    return {"mean": [roll.to_motion()[0]],
+            "sampled": [roll.to_motion(s)[0] for s in range(n_samples)]}
+
+
+def group_run(name: str, data: MotionDataset, contents: tuple, judges: dict,
+              full_judge: LogisticRegression, cfg: Settings) -> dict:
+    group, model, fit_s = fit_group(name, data, contents, cfg)
+    trials = list(group.trials)
     reference = NaturalnessReference.from_motions([t.actors[0] for t in trials], cfg.fps)
     real_speed = float(np.mean([joint_speed(t.actors[0].values).mean() for t in trials]))
     clips, nat = [], []
     judged = {"mean": [], "sampled": []}
-    for r, t in enumerate(trials):
+    for _, t, roll in generated(model, trials, cfg):
         e = t.labels["emotion"]
         row = {"clip": t.name, "emotion": e, "frames": t.n_frames}
-        try:
-            roll = model.generate(emotion=e, n_frames=t.n_frames, n_samples=cfg.n_samples,
-                                  start=r, seed=cfg.seed + r)
-        except BayesmotionError as err:
-            row["error"] = str(err)
+        if isinstance(roll, BayesmotionError):
+            row["error"] = str(roll)
             clips.append(row)
             continue
-        motions = {"mean": [roll.to_motion()[0]],
-                   "sampled": [roll.to_motion(s)[0] for s in range(cfg.n_samples)]}
+        motions = rollout_motions(roll, cfg.n_samples)
         for kind, ms in motions.items():
             labels = judges[t.name].predict(np.stack([clip_features(m) for m in ms]))
             judged[kind] += [lab == e for lab in labels]

@@ -9,6 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
+import foot_contacts  # noqa: E402
 import synthesis  # noqa: E402
 
 
@@ -43,14 +44,29 @@ def test_targets_are_judged_against_the_natural_rate():
     assert not synthesis.targets_met(g)["long_latent_range"]
 
 
-def test_missing_data_writes_a_skip_record(tmp_path):
+@pytest.mark.parametrize("bench", [synthesis, foot_contacts])
+def test_missing_data_writes_a_skip_record(tmp_path, bench):
     out = tmp_path / "s.json"
-    res = synthesis.run(True, root=tmp_path / "nowhere", out=out)
+    res = bench.run(True, root=tmp_path / "nowhere", out=out)
     assert "Bandai data not found" in res["skipped"]
     assert json.loads(out.read_text())["skipped"] == res["skipped"]
 
 
-@pytest.mark.parametrize("name", ["synthesis"])
+def test_foot_contacts_scores_are_the_mean_naturalness_ratios():
+    from bayesmotion.datasets import load_cmu_handshake
+    from bayesmotion.evaluation.naturalness import NaturalnessReference, naturalness
+
+    actors = [a.resample(30.0) for a in load_cmu_handshake().actors]
+    ref = NaturalnessReference.from_motions(actors[:1], 30.0)
+    got = foot_contacts.scores(actors, ref)
+    rows = [naturalness(m, ref) for m in actors]
+    assert got["n"] == 2
+    for k in foot_contacts.KEYS:
+        assert got[k] == pytest.approx((rows[0][k] + rows[1][k]) / 2)
+    assert got["foot_sliding_ratio"] == pytest.approx((1.0 + rows[1]["foot_sliding_ratio"]) / 2)
+
+
+@pytest.mark.parametrize("name", ["synthesis", "foot_contacts"])
 def test_the_benchmark_is_in_the_suite(name):
     import run_all
 
