@@ -18,8 +18,11 @@ the group's real clips (4 emotions each) at ``fps``. Then:
   the group's real clips (:mod:`bayesmotion.evaluation.naturalness`).
 * **Long rollouts.** ``long_frames``-frame mean rollouts per emotion and at a 50/50 mix of
   the first two emotions: the latent range (max |I| over the training range, overall and in
-  the last 200 frames) and the limb motion (mean absolute joint-angle change per frame,
-  root excluded) in the last 200 frames over the first 200 and over the real clips'.
+  the last 200 frames), the limb motion (mean absolute joint-angle change per frame,
+  root excluded) in the last 200 frames over the first 200 and over the real clips', and
+  whether a rollout keeps its emotion: the probability the judge trained on every real clip
+  gives its emotion, averaged over ``window``-frame windows of the first and of the last 200
+  frames (``judge_p_first200``, ``judge_p_last200``).
 * **Transitions** (walks): ``transition_frames``-frame mean rollouts whose emotion changes
   from neutral to each other emotion along a ``transition_length``-frame smoothstep
   (:class:`bayesmotion.Transition`) centred in the rollout: the judge's (trained on every real
@@ -113,10 +116,21 @@ def joint_speed(angles: np.ndarray) -> np.ndarray:
     return np.abs((d + 180.0) % 360.0 - 180.0).mean(-1)
 
 
-def long_rollouts(model, real_speed: float, cfg: Settings, n_samples: int = 0) -> dict:
+def windowed_probability(judge: LogisticRegression, motion, label: str, window: int):
+    """(start frames, the judge's probability of ``label``) over consecutive windows of
+    ``window`` frames."""
+    starts = np.arange(0, motion.n_frames - window + 1, window)
+    feats = np.stack([clip_features(motion.select(slice(a, a + window))) for a in starts])
+    return starts, judge.predict_proba(feats)[:, list(judge.classes).index(label)]
+
+
+def long_rollouts(model, real_speed: float, cfg: Settings, n_samples: int = 0,
+                  judge: LogisticRegression | None = None) -> dict:
     """``long_frames``-frame mean rollouts per emotion and at a 50/50 mix of the first two
     (and, with ``n_samples``, that many sampled rollouts of each): latent range and limb
-    motion (module docstring)."""
+    motion (module docstring); with a ``judge``, its probability of each emotion's label in
+    ``window``-frame windows of that emotion's mean rollout, over the first and the last 200
+    frames."""
     levels = list(model.levels["emotion"])
     mix = np.zeros(len(levels))
     mix[:2] = 0.5
@@ -140,6 +154,10 @@ def long_rollouts(model, real_speed: float, cfg: Settings, n_samples: int = 0) -
             out[label] = {"error": str(err)}
             continue
         out[label] = stats(roll.I, roll.angles[0])
+        if judge is not None and label in levels:
+            starts, p = windowed_probability(judge, roll.to_motion()[0], label, cfg.window)
+            out[label]["judge_p_first200"] = float(p[starts < 200].mean())
+            out[label]["judge_p_last200"] = float(p[starts >= cfg.long_frames - 200].mean())
         if n_samples:
             out[label]["samples"] = [stats(roll.samples["I"][k], roll.samples["angles"][k, 0])
                                      for k in range(n_samples)]
@@ -302,7 +320,7 @@ def group_run(name: str, data: MotionDataset, contents: tuple, judges: dict,
             nat.append({k: n[k] for k in ("jerk_ratio", "foot_sliding_ratio",
                                           "joint_limit_violations")})
         clips.append(row)
-    long = long_rollouts(model, real_speed, cfg)
+    long = long_rollouts(model, real_speed, cfg, judge=full_judge)
     ok_long = [v for v in long.values() if "error" not in v]
     trans = transitions(model, full_judge, cfg) if name == "walks" else None
     mech = mechanisms(group, model, real_speed, cfg) if name == "walks" else None
@@ -319,6 +337,8 @@ def group_run(name: str, data: MotionDataset, contents: tuple, judges: dict,
         "long_worst": {"latent_range": max((v["latent_range"] for v in ok_long), default=None),
                        "limb_motion_last_over_first": min(
                            (v["limb_motion_last_over_first"] for v in ok_long), default=None),
+                       "judge_p_last200": min((v["judge_p_last200"] for v in ok_long
+                                               if "judge_p_last200" in v), default=None),
                        "errors": len(long) - len(ok_long)},
     }
 
@@ -387,7 +407,9 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
             f", foot sliding {g['naturalness'].get('foot_sliding_ratio', 0):.2f}; "
             f"{cfg.long_frames}-frame rollouts: latent range <= "
             f"{g['long_worst']['latent_range'] or float('nan'):.2f}x, limb motion last/first >= "
-            f"{g['long_worst']['limb_motion_last_over_first'] or float('nan'):.2f}; fit "
+            f"{g['long_worst']['limb_motion_last_over_first'] or float('nan'):.2f}, judge's "
+            f"p(emotion) in the last 200 frames >= "
+            f"{g['long_worst']['judge_p_last200'] or float('nan'):.2f}; fit "
             f"{g['fit']['iterations']} iterations, converged {g['fit']['converged']}"))
     ok = [r for r in hs["emotions"].values() if "error" not in r]
     if ok:

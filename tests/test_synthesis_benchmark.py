@@ -71,3 +71,20 @@ def test_the_benchmark_is_in_the_suite(name):
     import run_all
 
     assert name in run_all.BENCHMARKS
+
+
+def test_windowed_probability_scores_consecutive_windows():
+    from bayesmotion.baselines import LogisticRegression
+    from bayesmotion.datasets import load_cmu_handshake
+    from bayesmotion.features import clip_features
+
+    a, b = (m.resample(30.0) for m in load_cmu_handshake().actors)
+    wins = [(m, s) for m in (a, b) for s in range(0, 60, 10)]  # 76 frames each
+    X = np.stack([clip_features(m.select(slice(s, s + 15))) for m, s in wins])
+    judge = LogisticRegression().fit(X, ["a" if m is a else "b" for m, _ in wins])
+    starts, p = synthesis.windowed_probability(judge, b, "b", 20)
+    np.testing.assert_array_equal(starts, [0, 20, 40])
+    col = list(judge.classes).index("b")
+    for k, s in enumerate(starts):
+        direct = judge.predict_proba(clip_features(b.select(slice(s, s + 20)))[None])[0, col]
+        assert p[k] == pytest.approx(direct)
