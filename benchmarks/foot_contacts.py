@@ -1,6 +1,6 @@
 """Foot sliding of generated motion before and after the foot-skate clean-up, side by side.
 
-    python benchmarks/foot_contacts.py [--quick] [--root DIR] [--out FILE]
+    python benchmarks/foot_contacts.py [--quick]
 
 The generated clips of ``benchmarks/synthesis.py`` (same groups, fits, rollouts and judges:
 one one-actor H-GPDM per content group on the shared Bandai clips, each real clip's mean
@@ -22,7 +22,6 @@ targets. ``run(quick)`` writes ``results/foot_contacts.json`` atomically.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 import warnings
@@ -35,10 +34,17 @@ if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
 import synthesis  # noqa: E402
-from _common import BANDAI_ROOT, RESULTS, bandai_present, headline, machine_info, write_json  # noqa: E402
+from _common import (  # noqa: E402
+    BANDAI_ROOT,
+    RESULTS,
+    bandai_present,
+    headline,
+    machine_info,
+    standalone_main,
+    write_json,
+)
 
 from bayesmotion.baselines import LogisticRegression  # noqa: E402
-from bayesmotion.datasets.bandai import load_bandai  # noqa: E402
 from bayesmotion.errors import BayesmotionError  # noqa: E402
 from bayesmotion.evaluation.naturalness import NaturalnessReference, naturalness  # noqa: E402
 from bayesmotion.features import clip_features  # noqa: E402
@@ -103,8 +109,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
         write_json(out, result)
         return result
     t0 = time.perf_counter()
-    contents = sorted({c for cs in cfg.groups.values() for c in cs})
-    data = load_bandai(root, content=contents, fps=cfg.fps)
+    data = synthesis.load_clips(root, cfg)
     features = np.stack([clip_features(t.actors[0]) for t in data])
     judges = dict(zip([t.name for t in data],
                       synthesis.held_out_judges(features, [t.labels["emotion"] for t in data]),
@@ -132,17 +137,10 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
     return result
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="one group, few iterations")
-    ap.add_argument("--root", default=None, help=f"Bandai folder (default {BANDAI_ROOT})")
-    ap.add_argument("--out", default=None, help="JSON path (default results/<name>.json)")
-    a = ap.parse_args(argv)
-    res = run(a.quick, a.root, a.out)
-    for row in res.get("headline", []):
-        print(row)
-    print(res.get("skipped", ""))
-    return 0
+def main() -> int:
+    return standalone_main(NAME, run, __doc__, "one group of two walk contents, few iterations",
+                           lambda r: "\n".join(map(str, r.get("headline", [])))
+                           + r.get("skipped", ""))
 
 
 if __name__ == "__main__":

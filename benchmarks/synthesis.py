@@ -360,6 +360,12 @@ def targets_met(g: dict) -> dict:
     }
 
 
+def load_clips(root: Path, cfg: Settings) -> MotionDataset:
+    """Every Bandai clip of every group's contents at ``cfg.fps``."""
+    return load_bandai(root, content=sorted({c for cs in cfg.groups.values() for c in cs}),
+                       fps=cfg.fps)
+
+
 def run(quick: bool, root: str | Path | None = None, out: str | Path | None = None,
         settings: Settings | None = None) -> dict:
     cfg = settings or (QUICK if quick else Settings())
@@ -373,8 +379,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
         write_json(out, result)
         return result
     t0 = time.perf_counter()
-    contents = sorted({c for cs in cfg.groups.values() for c in cs})
-    data = load_bandai(root, content=contents, fps=cfg.fps)
+    data = load_clips(root, cfg)
     motions = [t.actors[0] for t in data]
     labels = [t.labels["emotion"] for t in data]
     features = np.stack([clip_features(m) for m in motions])
