@@ -197,3 +197,55 @@ def test_projection_rounds_rescale_and_never_worsen(tiny_model, tiny_data, monke
     assert res.success and res.nit < 5000 and len(limits) == -(-res.nit // 100)
     value = float(_neg_value_and_grad(p, *args, **statics)[0])
     assert res.fun == pytest.approx(value, rel=1e-12) and res.fun < start
+
+
+def test_batched_projections_match_one_at_a_time(tiny_model, tiny_data):
+    """minimize_scaled_many with batch=True (jobs of equal shapes under vmap, one program per
+    round) returns each job's own result: the objective to rounding, the iteration count and
+    status of minimize_scaled on that job alone, with jobs that stop at different rounds
+    (batched arithmetic rounds differently, so the paths part in the last digits)."""
+    from jax.flatten_util import ravel_pytree
+
+    from bayesmotion.emotion.projection import minimize_scaled, minimize_scaled_many
+
+    params, args, statics = _setup(tiny_model, tiny_data[0], 9, 16)
+    other, args2, _ = _setup(tiny_model, tiny_data[3], 9, 16)
+    jobs = [(params, args), (other, args2), ({**params, "I": params["I"] + 0.05}, args)]
+    short, _, _ = _setup(tiny_model, tiny_data[1], 5, 8)  # another shape: its own group
+    jobs.append((short, args[:1] + _setup(tiny_model, tiny_data[1], 5, 8)[1][1:]))
+    for max_iter in (12, 400):
+        alone = [minimize_scaled(p, a, statics, max_iter, round_iter=5) for p, a in jobs]
+        many = minimize_scaled_many(jobs, statics, max_iter, round_iter=5, batch=True)
+        seq = minimize_scaled_many(jobs, statics, max_iter, round_iter=5, batch=False)
+        for (p0, r0), (p1, r1), (_, r2) in zip(alone, many, seq, strict=True):
+            np.testing.assert_allclose(r1.fun, r0.fun, rtol=1e-6)
+            if max_iter == 12:
+                assert (r1.nit, r1.status) == (r0.nit, r0.status) == (12, 1)
+                np.testing.assert_allclose(ravel_pytree(p1)[0], ravel_pytree(p0)[0],
+                                           atol=1e-4)
+            else:
+                assert r0.success and r1.success and r1.nit < 400
+            assert r2.fun == r0.fun and r2.nit == r0.nit  # batch=False is the loop itself
+        if max_iter == 400:  # the jobs stopped at different iterations, before the limit
+            assert len({r.nit for _, r in alone}) > 1 and all(r.nit < 400 for _, r in alone)
+
+
+def test_vertices_answer_does_not_depend_on_batching(tiny_model, tiny_data, monkeypatch):
+    """infer_emotion's level projections batched (the accelerator default) or one at a time
+    (the CPU default) give the same evidence and label probabilities once the projections
+    converge (stopped at an iteration limit, rounding moves where they stop)."""
+    from bayesmotion.emotion import projection as proj
+
+    out = {}
+    for batched in (False, True):
+        monkeypatch.setattr(proj, "batch_jobs", lambda b=batched: b)
+        ep = bm.infer_emotion(tiny_model, tiny_data[2], n_steps=40, latent_uncertainty=False,
+                              level_starts=2, start_jitter=0.02, max_iter=3000)
+        out[batched] = ep
+    a, b = out[False].info, out[True].info
+    # each level keeps its best start: the same optimum to within 0.1 nats of evidence
+    np.testing.assert_allclose(b["level_log_evidence"], a["level_log_evidence"], atol=0.1)
+    np.testing.assert_allclose(out[True].label_probabilities, out[False].label_probabilities,
+                               atol=0.01)
+    assert out[True].label == out[False].label
+    assert len(a["level_laplace"][0]["start_objectives"]) == 2

@@ -13,8 +13,10 @@
    and keeps the best optimum. When the couple is inferred: one start per couple level, the
    best optimum kept. L-BFGS runs in coordinates scaled by the exact Hessian diagonal.
    Latent uncertainty: a diagonal Laplace approximation (exact diag H, coloured HVPs).
-3. Style posterior: emcee samples the clip's emotion coordinates (and its couple style when not
-   given) on the simplex, with the latents held at their MAP -- i.e. the conditional posterior
+3. Style posterior: an ensemble sampler with emcee's differential-evolution move
+   (bayesmotion.inference.ensemble, one compiled program; or emcee itself) samples the clip's
+   emotion coordinates (and its couple style when not given) on the simplex, with the latents
+   held at their MAP -- i.e. the conditional posterior
    p(s* | Y*, X*, I*) proportional to p(s*) p(X* | I*, s*) p(I* | s*) (interaction and dynamics
    predictive likelihoods). With a Posterior as ``model`` this is repeated for several posterior
    draws of the hyperparameters and the samples are pooled (a mixture over draws).
@@ -59,15 +61,18 @@ from bayesmotion.emotion.ood import (
 from bayesmotion.emotion.projection import (
     START_JITTER,
     STATIC_ARGS,
+    best_fit,
     diag_hessian,
     minimize_scaled,
-    project,
+    minimize_scaled_many,
+    other_starts,
     project_levels,
     projection_starts,
     seen_predictor,
 )
 from bayesmotion.emotion.result import EmotionPosterior, pool_posteriors
 from bayesmotion.errors import BayesmotionError, warn
+from bayesmotion.inference.ensemble import run_de
 from bayesmotion.inference.posterior import Posterior
 from bayesmotion.inference.target import capped_covariance, draw_start, in_halves
 from bayesmotion.model.generate import style_coords
@@ -158,7 +163,7 @@ def _style_setup(model, given: dict, prior):
 
 
 def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=None,
-                  method: str = "emcee", seed: int = 0, n_walkers: int = 64, n_steps: int = 150,
+                  method: str = "ensemble", seed: int = 0, n_walkers: int = 64, n_steps: int = 150,
                   n_draws: int = 4, max_iter: int = 200, latent_uncertainty: bool = True,
                   likelihood_power: float = 1.0,
                   emotion_starts: str = "vertices", level_starts: int = 1,
@@ -176,7 +181,11 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             (e.g. ``{"content": "walk-left"}``); a factor neither given nor the emotion is
             inferred alongside it.
         prior: Dirichlet concentrations over the emotion levels (default flat, all ones).
-        method: "emcee" (the only sampler for now; NUTS is used for the model posterior).
+        method: the style sampler, both with emcee's differential-evolution move:
+            "ensemble" (the default: :func:`bayesmotion.inference.ensemble.run_de`, the whole
+            run one compiled JAX program, no host round trip per step) or "emcee" (emcee's
+            ``EnsembleSampler``, the log-density called from the host twice per step). The
+            two sample the same distribution with different random numbers.
         seed: seeds the walkers.
         n_walkers: emcee walkers.
         n_steps: emcee steps. With a Posterior as ``model`` the steps are shared
@@ -246,8 +255,8 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
     check_infer_memory(clip, fitted.fps, fitted.predictor_rows, fitted.n_actors + 2,
                        n_walkers, n_steps)
     check_projection_starts(emotion_starts, level_starts, start_jitter)
-    if method != "emcee":
-        raise BayesmotionError(f"method must be 'emcee', got {method!r}")
+    if method not in ("ensemble", "emcee"):
+        raise BayesmotionError(f"method must be 'ensemble' or 'emcee', got {method!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
         raise BayesmotionError(f"max_iter (L-BFGS iterations of the projection) must be a "
                                f"positive integer, got {max_iter!r}")
@@ -263,12 +272,12 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
         parts = [_infer_one(model.model, model.predictor(int(i)), clip, frames, given, prior,
                             seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
                             latent_uncertainty and k == 0, likelihood_power, emotion_starts,
-                            n_eff, int(level_starts), float(start_jitter))
+                            n_eff, int(level_starts), float(start_jitter), method)
                  for k, i in enumerate(idx)]
         return pool_posteriors(parts)
     return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
                       n_steps, max_iter, latent_uncertainty, likelihood_power, emotion_starts,
-                      n_eff, int(level_starts), float(start_jitter))
+                      n_eff, int(level_starts), float(start_jitter), method)
 
 
 def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
@@ -287,7 +296,8 @@ def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
 
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
                latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices",
-               n_eff=(float("inf"), False), level_starts=1, start_jitter=START_JITTER):
+               n_eff=(float("inf"), False), level_starts=1, start_jitter=START_JITTER,
+               method="ensemble"):
     import emcee
 
     t0 = time.perf_counter()
@@ -340,7 +350,12 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
         params, res = minimize_scaled(params, args, statics, max_iter)
     else:
         starts = projection_starts(model, Ys, B, inferred, conc, emotion_starts)
-        fits = [project(p, args, statics, max_iter, inferred, conc) for p in starts]
+        jobs = [[(q, args) for q in other_starts(p, inferred, conc)] for p in starts]
+        flat = minimize_scaled_many([j for js in jobs for j in js], statics, max_iter)
+        fits, at = [], 0
+        for js in jobs:  # each start's best over its other-style starts
+            fits.append(best_fit(flat[at:at + len(js)]))
+            at += len(js)
         params, res = min(fits, key=lambda pr: pr[1].fun)
     stage("project")
     latents = {"X": params["X"], "I": params["I"]}
@@ -376,13 +391,21 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
 
     # differential-evolution moves from a Laplace start: autocorrelation ~7 steps here, against
     # ~20 for the default stretch move from a ball (measured on the demo's held-out trials)
-    sampler = emcee.EnsembleSampler(W, ndim, log_prob, vectorize=True,
-                                    moves=emcee.moves.DEMove())
-    state = emcee.State(p0, random_state=np.random.RandomState(seed).get_state())
-    sampler.run_mcmc(state, n_steps, progress=False)
-    burn = n_steps // 3
-    chain = sampler.get_chain(discard=burn)  # (steps, W, ndim)
-    lp = sampler.get_log_prob(discard=burn)
+    if method == "ensemble":  # the same move, the whole run one compiled program
+        run = run_de(_style_logp_batch, sty[:3], p0, n_steps, seed,
+                     static=tuple(zip(_STYLE_STATIC, sty[3:], strict=True)))
+        burn = n_steps // 3
+        chain, lp = np.asarray(run.chain)[burn:], np.asarray(run.log_prob)[burn:]
+        acceptance = float(np.mean(np.asarray(run.accepted))) / n_steps
+    else:
+        sampler = emcee.EnsembleSampler(W, ndim, log_prob, vectorize=True,
+                                        moves=emcee.moves.DEMove())
+        state = emcee.State(p0, random_state=np.random.RandomState(seed).get_state())
+        sampler.run_mcmc(state, n_steps, progress=False)
+        burn = n_steps // 3
+        chain = sampler.get_chain(discard=burn)  # (steps, W, ndim)
+        lp = sampler.get_log_prob(discard=burn)
+        acceptance = float(np.mean(sampler.acceptance_fraction))
     with np.errstate(invalid="ignore", divide="ignore"):  # a coordinate no walker moved
         tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
     tau[~np.isfinite(tau)] = np.inf  # it holds no effective sample
@@ -397,7 +420,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     info = {"n_frames": T, "mirrored": mirrored,
             "seconds": time.perf_counter() - t0, "stage_seconds": stages,
             "tau": tau, "likelihood_power": float(likelihood_power),
-            "acceptance": float(np.mean(sampler.acceptance_fraction)),
+            "acceptance": acceptance, "sampler": method,
             "map_objective": float(res.fun), "map_iterations": int(res.nit),
             "emotion_starts": emotion_starts, "level_starts": level_starts,
             "start_jitter": start_jitter, **levels_info,
