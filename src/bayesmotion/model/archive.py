@@ -84,6 +84,8 @@ def save_model(model, path) -> Path:
     for f, h in model.data.onehot.items():
         arrays[f"onehot/{f}"] = np.asarray(h)
     arrays["lengths"] = np.asarray(model.data.lengths)
+    if model.data.loops is not None:
+        arrays["loops"] = np.asarray(model.data.loops)
     for a, codec in enumerate(model.codecs):
         arrays.update(codec.to_arrays(f"codec{a}/"))
     for r, rec in enumerate(model.trials):

@@ -23,12 +23,15 @@ class ModelData(NamedTuple):
         onehot: factor -> (R, K_f) one-hot labels of the training trials.
         trial_of_frame: (N,) trial index of every frame.
         lengths: (R,) frames per trial.
+        loops: None, or for a periodic model (``HGPDM(periodic=True)``) per trial -1 or the
+            trial-local frame its end loops back to (:func:`find_loops`).
     """
 
     Y: tuple[np.ndarray, ...]
     onehot: dict[str, np.ndarray]
     trial_of_frame: np.ndarray
     lengths: np.ndarray
+    loops: np.ndarray | None = None
 
 
 def fit_codecs(spec: HGPDM, dataset: MotionDataset) -> tuple:
@@ -75,5 +78,46 @@ def prepare_data(spec: HGPDM, dataset: MotionDataset, codecs) -> ModelData:
     if lengths.min() <= spec.order + 1:
         raise BayesmotionError(f"every trial needs more than {spec.order + 1} frames; the "
                                f"shortest has {lengths.min()}")
+    loops = find_loops(Y, lengths, spec.order)[0] if spec.periodic else None
     return ModelData(Y, onehot_labels(dataset, spec.factors),
-                     np.repeat(np.arange(len(dataset)), lengths), lengths)
+                     np.repeat(np.arange(len(dataset)), lengths), lengths, loops)
+
+
+# a loop is at least this many frames long (shorter matches are a pose held still)
+LOOP_MIN_PERIOD = 5
+
+
+def find_loops(Y, lengths, order: int, min_period: int = LOOP_MIN_PERIOD,
+               tolerance: float = 1.0) -> tuple[np.ndarray, list[dict]]:
+    """Where each trial's end loops back to, for periodic motion (a walk, a run).
+
+    For a trial of n frames with poses y (every actor's normalised poses side by side), the
+    candidate frames k have their o-frame window y[k:k+o] compared with the last o frames
+    y[n-o:n] by root-mean-square distance, over the k that leave a loop of at least
+    ``min_period`` frames (n - o - k) and o frames after the window (k + 2 o <= n). The
+    closest k is the trial's loop if its distance is at most ``tolerance`` times the trial's
+    median distance between consecutive frames (closer than one frame's step); else -1, the
+    trial does not loop (a gesture, a clip that ends elsewhere).
+
+    Returns (loops (R,) ints, per trial {"frame", "period", "match"}: the closest k, its loop
+    length n - o - k and its distance over the median step, or None where no k qualifies).
+    """
+    Yc = np.concatenate([np.asarray(y) for y in Y], axis=1)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    loops, info = [], []
+    for s, n in zip(starts, lengths, strict=True):
+        s, n = int(s), int(n)
+        y = Yc[s:s + n]
+        step = float(np.median(np.linalg.norm(np.diff(y, axis=0), axis=1)))
+        ks = np.arange(0, min(n - 2 * order, n - order - min_period) + 1)
+        if ks.size == 0 or step <= 0:
+            loops.append(-1)
+            info.append(None)
+            continue
+        tail = y[n - order:]
+        d = np.sqrt(np.array([np.mean(np.sum((y[k:k + order] - tail) ** 2, -1)) for k in ks]))
+        k = int(ks[np.argmin(d)])
+        match = float(d.min() / step)
+        loops.append(k if match <= tolerance else -1)
+        info.append({"frame": k, "period": n - order - k, "match": match})
+    return np.asarray(loops, dtype=np.int64), info

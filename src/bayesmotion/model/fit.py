@@ -155,7 +155,7 @@ def init_params(spec: HGPDM, data: ModelData, seed: int = 0, jitter_scale: float
         "log_beta": np.log([var_z, 1.0, 100.0 / var_z]),
         "log_alpha": np.log([var_i] + [1.0] * o + lin + [100.0 / var_i]),
     }
-    index = DynamicsIndex(data.lengths, o)
+    index = DynamicsIndex(data.lengths, o, data.loops)
     if spec.stable_dynamics:
         params[AR_KEY] = initial_ar(I, index)
     if spec.inducing is not None:

@@ -90,9 +90,10 @@ def _build(meta: dict, arrays, path: Path) -> FittedHGPDM:
     A = len(codecs)
     factors = _strings(meta["factors"], "factors", path)
     levels = _levels(meta["levels"], path)
+    loops = _loops(arrays, lengths, spec, path)
     data = ModelData(tuple(arrays[f"Y/{a}"] for a in range(A)),
                      {f: arrays[f"onehot/{f}"] for f in factors},
-                     np.repeat(np.arange(lengths.size), lengths), lengths)
+                     np.repeat(np.arange(lengths.size), lengths), lengths, loops)
     records = tuple(_trial(t, r, arrays, A, path) for r, t in enumerate(trials))
     fps = meta["fps"]
     lo, hi = FRAME_TIME_RANGE
@@ -137,7 +138,7 @@ def _spec(d, path) -> HGPDM:
         _strings(d.get(key), key, path)
     spec = HGPDM.from_dict(d)
     ints = [getattr(spec, k) for k in ("latent_dim", "interaction_dim", "order")]
-    bools = [getattr(spec, k) for k in ("rest_frames", "canonical_side")]
+    bools = [getattr(spec, k) for k in ("rest_frames", "canonical_side", "periodic")]
     if not all(type(v) is int for v in ints) or not all(type(v) is bool for v in bools) \
             or spec.root_mode not in ROOT_MODES or spec.scaling not in ("type", "channel"):
         raise _bad(path, f"specification fields have the wrong types or values: {d!r:.200}")
@@ -163,6 +164,24 @@ def _lengths(lengths: np.ndarray, n_trials: int, order: int, path) -> np.ndarray
         raise _bad(path, f"{int(lengths.sum())} training frames, more than bayesmotion.model.io."
                          f"MAX_TRAINING_FRAMES = {MAX_TRAINING_FRAMES}")
     return lengths.astype(np.int64)
+
+
+def _loops(arrays, lengths: np.ndarray, spec, path) -> np.ndarray | None:
+    """A periodic model's loop frames: per trial -1 or a frame k with k + 2 o <= its length
+    (what :class:`~bayesmotion.model.layers.DynamicsIndex` needs); None for other models."""
+    if not spec.periodic:
+        if "loops" in arrays:
+            raise _bad(path, "loop frames stored for a model that is not periodic")
+        return None
+    if "loops" not in arrays:
+        raise _bad(path, "a periodic model without its loop frames")
+    loops = arrays["loops"]
+    if loops.dtype.kind not in "iu" or loops.shape != lengths.shape or np.any(loops < -1) \
+            or np.any(loops + 2 * spec.order > lengths):
+        raise _bad(path, f"loop frames must be {lengths.size} integers, -1 or a frame k with "
+                         f"k + {2 * spec.order} <= its trial's length, got a {loops.dtype} "
+                         f"array of shape {loops.shape}")
+    return loops.astype(np.int64)
 
 
 def _trial(t, r: int, arrays, A: int, path) -> TrialRecord:

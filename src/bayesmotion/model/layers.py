@@ -47,9 +47,15 @@ class DynamicsIndex:
     For every trial with frames [s, e), the outputs are frames s+o .. e-1 and lag l (1..o) of
     output t is frame t-l: the Markov chain restarts at each trial, whose first o frames get the
     isotropic Gaussian prior instead (eq. 9 / 11).
+
+    ``loops`` (periodic models, :func:`bayesmotion.model.data.find_loops`): per trial, -1 or
+    the trial-local frame k whose o frames match the trial's last o: the frame after the last
+    then continues as frame k + o did. o rows are added per such trial, read along the wrapped
+    sequence e-o, .., e-1, s+k+o, .., s+k+2o-1: outputs s+k+o+m (m < o) with lag l the frame
+    l before it in that sequence. ``n_loop_rows`` counts them.
     """
 
-    def __init__(self, lengths, order: int):
+    def __init__(self, lengths, order: int, loops=None):
         if order not in (1, 2):
             raise ValueError(f"dynamics order must be 1 or 2, got {order}")
         lengths = [int(n) for n in lengths]
@@ -64,6 +70,29 @@ class DynamicsIndex:
         self.lag = [self.out - l for l in range(1, order + 1)]
         self.first = np.concatenate([np.arange(s, s + order) for s in starts])
         self.trial_of_frame = np.repeat(np.arange(len(lengths)), lengths)
+        self.n_loop_rows = 0
+        if loops is None:
+            return
+        loops = np.asarray(loops)
+        if loops.shape != (len(lengths),):
+            raise ValueError(f"loops must hold one frame per trial, got shape {loops.shape}")
+        out, lag = [], [[] for _ in range(order)]
+        for s, n, k in zip(starts, lengths, loops, strict=True):
+            if k < 0:
+                continue
+            if k + 2 * order > n:
+                raise ValueError(f"loop frame {k} leaves no {order} frames to continue with in a "
+                                 f"trial of {n}")
+            seq = [s + n - order + j for j in range(order)] + [s + k + order + j
+                                                                for j in range(order)]
+            for m in range(order):
+                out.append(seq[order + m])
+                for l in range(1, order + 1):
+                    lag[l - 1].append(seq[order + m - l])
+        self.n_loop_rows = len(out)
+        self.out = np.concatenate([self.out, np.asarray(out, int)])
+        self.lag = [np.concatenate([a, np.asarray(b, int)]) for a, b in zip(self.lag, lag,
+                                                                          strict=True)]
 
 
 def evenly_spaced(n: int, m: int) -> np.ndarray:

@@ -90,7 +90,7 @@ class LogPosterior:
         self.spec = spec
         self.dense = dense
         self.data = data
-        self.index = layers.DynamicsIndex(data.lengths, spec.order)
+        self.index = layers.DynamicsIndex(data.lengths, spec.order, data.loops)
         self.style_prior = StylePrior.around_labels(data.onehot, spec.priors.style_kappa)
         tof = data.trial_of_frame
         int_cells = densities.cell_ids([data.onehot[f][tof] for f in spec.interaction_factors])

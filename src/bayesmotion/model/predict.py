@@ -222,7 +222,7 @@ def sparse_layers(spec, data, params, jitter) -> dict:
     per actor}. :func:`condition` makes its predictor from them, and the out-of-distribution
     reference (:mod:`bayesmotion.emotion.ood`) the training rows' held-out residuals."""
     h = constrained(params)
-    index = layers.DynamicsIndex(data.lengths, spec.order)
+    index = layers.DynamicsIndex(data.lengths, spec.order, data.loops)
     plan = layers.InducingPlan(int(np.sum(data.lengths)), index, spec.inducing)
     S = trial_styles(params, data)
     tof = data.trial_of_frame
@@ -274,7 +274,7 @@ def _condition(spec, data, params, jitter, blocked=True) -> Predictor:
     if spec.inducing is not None:
         return _condition_sparse(spec, data, params, jitter)
     h = constrained(params)
-    index = layers.DynamicsIndex(data.lengths, spec.order)
+    index = layers.DynamicsIndex(data.lengths, spec.order, data.loops)
     S = trial_styles(params, data)
     tof = data.trial_of_frame
     X, I = params["X"], params["I"]

@@ -71,6 +71,14 @@ class HGPDM:
             The inducing inputs start at M evenly spaced training frames, whose style they
             keep, and are fitted with the latents; with M >= N they start at every frame and
             the bound equals the exact model.
+        periodic: the motion is periodic (walks, runs): each training trial whose last o
+            frames match an earlier o-frame window closer than one frame's step
+            (:func:`bayesmotion.model.data.find_loops`) gets o extra dynamics rows that continue
+            its last frames as that window was continued, so the dynamics learns what follows
+            the end of the recording and the latent trajectory closes into a loop. Without it
+            a rollout that reaches the end of its training trajectory has nothing to follow
+            and drifts off the data (docs/model.md). Off by default: a gesture or a
+            handshake should come to rest, not repeat.
         priors: prior settings.
     """
 
@@ -87,6 +95,7 @@ class HGPDM:
     dynamics_linear: str = "stable"
     dynamics_weight: float = 1.0
     inducing: int | None = None
+    periodic: bool = False
     priors: Priors = field(default_factory=Priors)
 
     def __post_init__(self):
@@ -105,6 +114,9 @@ class HGPDM:
                 raise BayesmotionError(f"inducing must be None (the exact model) or a whole "
                                        f"number >= 2 of inducing points, got {m!r}")
             object.__setattr__(self, "inducing", int(m))
+        if not isinstance(self.periodic, bool):
+            raise BayesmotionError(f"periodic must be True or False, got {self.periodic!r}")
+        object.__setattr__(self, "periodic", bool(self.periodic))
         if self.dynamics_linear not in DYNAMICS_LINEAR:
             raise BayesmotionError(f"dynamics_linear must be one of {DYNAMICS_LINEAR}, got "
                                    f"{self.dynamics_linear!r}")
@@ -144,7 +156,7 @@ class HGPDM:
                                              "root_mode", "scaling", "rest_frames",
                                              "canonical_side", "pose_space",
                                              "dynamics_linear", "dynamics_weight",
-                                             "inducing")}
+                                             "inducing", "periodic")}
         d["interaction_factors"] = list(self.interaction_factors or ())
         d["dynamics_factors"] = list(self.dynamics_factors or ())
         d["priors"] = self.priors.to_dict()
@@ -159,6 +171,7 @@ class HGPDM:
         d.setdefault("dynamics_linear", "kernel")  # files written before the option existed
         d.setdefault("dynamics_weight", 1.0)
         d.setdefault("inducing", None)
+        d.setdefault("periodic", False)
         return cls(**d)
 
     def fit(self, dataset: MotionDataset, **kwargs) -> FittedHGPDM:
