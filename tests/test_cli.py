@@ -77,6 +77,13 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     pinned = bm.load_rollout(tmp_path / "gen_pinned" / "happy_rollout.npz")
     plain = tiny_model.generate(emotion="happy", n_frames=12, n_samples=1).pin_feet()
     np.testing.assert_allclose(pinned.angles, plain.angles, atol=1e-6)
+    assert main(["generate", str(model), "--emotion", "happy", "--frames", "12",
+                 "--lookahead", "5", "--out", str(tmp_path / "gen_guided")]) == 0
+    guided = bm.load_rollout(tmp_path / "gen_guided" / "happy_rollout.npz")
+    np.testing.assert_allclose(guided.I, tiny_model.generate(emotion="happy", n_frames=12,
+                                                             lookahead=5.0).I, atol=1e-9)
+    assert "lookahead must be a finite number >= 0" in one_line_error(
+        capsys, ["generate", str(model), "--lookahead", "-1", "--out", str(tmp_path)])
     assert "--sample-memory must be an integer in [0, 256]" in one_line_error(
         capsys, ["generate", str(model), "--sample-memory", "-1", "--out", str(tmp_path)])
     assert "n_samples is 0" in one_line_error(

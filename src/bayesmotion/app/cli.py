@@ -146,6 +146,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="steps of its own path each step of a sampled rollout is conditioned on, "
                         f"at most {MAX_SAMPLE_MEMORY} (0: each step given the training data "
                         f"alone; default {SAMPLE_MEMORY}); needs --samples")
+    g.add_argument("--lookahead", type=float, default=0.0, metavar="WEIGHT",
+                   help="keep long rollouts on the training latents: each step also lowers the "
+                        "next step's predictive variance, with this weight (0: plain "
+                        "predictive means; 10 keeps periodic walk models walking)")
     g.add_argument("--pin-feet", action="store_true",
                    help="correct each actor's root path so planted feet do not glide "
                         "(bayesmotion.features.contacts.pin_feet)")
@@ -337,7 +341,8 @@ def _cmd_generate(a):
         raise BayesmotionError(f"--frames must exceed the model's dynamics order "
                                f"({m.spec.order}), got {a.frames}")
     r = m.generate(emotion=emotion, couple=a.couple, n_frames=a.frames,
-                   n_samples=a.samples, seed=a.seed, sample_memory=a.sample_memory)
+                   n_samples=a.samples, seed=a.seed, sample_memory=a.sample_memory,
+                   lookahead=a.lookahead)
     if a.pin_feet:
         r = r.pin_feet()
     tag = a.emotion.replace(",", "_")

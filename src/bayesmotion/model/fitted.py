@@ -173,7 +173,8 @@ class FittedHGPDM:
 
     # ------------------------------------------------------------------ generation
     def generate(self, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,
-                 start=None, seed: int = 0, sample_memory: int = SAMPLE_MEMORY, **styles):
+                 start=None, seed: int = 0, sample_memory: int = SAMPLE_MEMORY,
+                 lookahead: float = 0.0, **styles):
         """Generate motion top-down with predictive uncertainty.
 
         Args:
@@ -190,12 +191,19 @@ class FittedHGPDM:
             sample_memory: steps of its own path (at most 256) each step of a sampled rollout
                 is conditioned on besides the training data, as if they were training data (0:
                 each step drawn given the training data alone); only with ``n_samples`` > 0.
+            lookahead: weight of the look-ahead that keeps long rollouts on the training
+                latents (:func:`bayesmotion.model.generate.lookahead_step`): each step's
+                mean also lowers the next step's predictive variance, weighted so. 0 (the
+                default) rolls out the plain predictive means. With a periodic model
+                (``HGPDM(periodic=True)``) and ``lookahead=10`` the Bandai walks keep
+                walking and keep their emotion over 1,000 frames (docs/model.md,
+                ``benchmarks/results/synthesis.json``). Not with ``sample_memory``.
             **styles: values for any other style factor of the model.
         Returns:
             a :class:`bayesmotion.model.rollout.Rollout`.
         """
         return generate(self, emotion, couple, n_frames, n_samples, start, seed,
-                        sample_memory=sample_memory, **styles)
+                        sample_memory=sample_memory, lookahead=lookahead, **styles)
 
     def with_calibration(self, calibration: dict) -> FittedHGPDM:
         """This model with the emotion evidence's calibration ``calibration`` (at least

@@ -103,9 +103,62 @@ def is_extrapolated(coords: np.ndarray) -> bool:
 
 
 # --------------------------------------------------------------------------- the jitted core
-@partial(jax.jit, static_argnames=("n_steps", "sample", "with_var", "memory"))
+LOOKAHEAD_ITERATIONS = 4  # descent iterations of a look-ahead step
+LOOKAHEAD_STEPS = (1.0, 0.5, 0.25, 0.125)  # the step lengths each iteration tries
+LOOKAHEAD_MAX_SD = 3.0  # a look-ahead step moves the mean by at most this many predictive sd
+
+
+def lookahead_step(P: Predictor, lags, s_now, s_next, weight, noise):
+    """One look-ahead step: (the new latent (Q,), the one-step variance with noise).
+
+    The step's value z minimises the negative log predictive density of the step,
+    |z - mu|^2 / (2 v), plus ``weight`` times the next step's log predictive variance,
+    (Q / 2) log v_next(z), v_next from the lags (z, lags[:-1]) at the next step's styles
+    ``s_next``. weight = 1 is the MAP of this step given that the next one is drawn at its
+    own mean (a two-step look-ahead); a larger weight stands in for more future steps
+    depending on this one. Far from the training latents v_next grows, so the step is pulled
+    back to where the dynamics has data.
+
+    Minimised from z = mu by ``LOOKAHEAD_ITERATIONS`` steps of gradient descent
+    preconditioned by v, each trying the lengths ``LOOKAHEAD_STEPS`` at once and keeping the
+    lowest objective if it is lower than the current one; z stays within
+    ``LOOKAHEAD_MAX_SD`` predictive standard deviations sqrt(v) of mu (a trust region: the step
+    remains a plausible draw of the predictive). The objective never rises.
+    """
+    Q = lags.shape[-1]
+
+    def mean_var(lg, s):
+        m, v = predict_dynamics(P, lg[:, None, :], [x[None] for x in s])
+        return m[0], v[0] + noise
+
+    mu, v = mean_var(lags, s_now)
+
+    def objective(z):
+        nxt = mean_var(jnp.concatenate([z[None], lags[:-1]]), s_next)[1]
+        return jnp.sum((z - mu) ** 2) / (2.0 * v) + weight * 0.5 * Q * jnp.log(nxt)
+
+    def inside(z):  # (n, Q) points moved into the trust region around mu
+        d = z - mu
+        r = jnp.sqrt(jnp.sum(d * d, -1, keepdims=True) / v)
+        return mu + d * jnp.minimum(1.0, LOOKAHEAD_MAX_SD / jnp.maximum(r, 1e-300))
+
+    value_and_grad = jax.value_and_grad(objective)
+    steps = jnp.asarray(LOOKAHEAD_STEPS)
+    z = mu
+    for _ in range(LOOKAHEAD_ITERATIONS):
+        f, g = value_and_grad(z)
+        cand = inside(z[None] - steps[:, None] * v * g[None])
+        fc = jax.vmap(objective)(cand)
+        fc = jnp.where(jnp.isfinite(fc), fc, jnp.inf)
+        best = jnp.argmin(fc)
+        z = jnp.where(fc[best] < f, cand[best], z)
+    return z, v
+
+
+@partial(jax.jit, static_argnames=("n_steps", "sample", "with_var", "memory", "guided"))
 def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
-                     with_var: bool = True, memory: int = 0):
+                     with_var: bool = True, memory: int = 0, guided: bool = False,
+                     lookahead=0.0):
     """Roll the dynamics forward n_steps from I0 (o, Q) with per-step styles (n_steps, K_f).
 
     Returns (I (n_steps, Q), one-step variance (n_steps,) including the dynamics noise; None
@@ -115,9 +168,27 @@ def dynamics_rollout(P: Predictor, I0, styles, key, n_steps: int, sample: bool,
     its one-step variances are computed afterwards for all steps at once (one product of L^-1
     with the n_steps cross-covariance columns). A sampled rollout needs each step's variance to
     draw it, so it computes it inside the scan.
+
+    ``guided`` (with ``lookahead`` > 0, not with ``memory``): each step's mean is the
+    :func:`lookahead_step` of weight ``lookahead`` instead of the predictive mean; a sampled
+    step draws around it with the predictive variance.
     """
     noise = noise_variances(P)["I"]
     o = I0.shape[0]
+    if guided:
+        st = tuple(styles)
+        nxt = tuple(jnp.concatenate([s[1:], s[-1:]]) for s in st)
+
+        def guided_step(lags, inp):
+            s_now, s_next, k = inp
+            z, v = lookahead_step(P, lags, s_now, s_next, lookahead, noise)
+            if sample:
+                z = z + jnp.sqrt(v) * jax.random.normal(k, z.shape)
+            return jnp.concatenate([z[None], lags[:-1]], axis=0), (z, v)
+
+        _, (I, v) = jax.lax.scan(guided_step, I0[::-1],
+                                 (st, nxt, jax.random.split(key, n_steps)))
+        return I, v
 
     predict_mean, style_rows = dynamics_mean_stepper(P, styles)
     if not styles:  # no dynamics factors: every training row's style factor is 1
@@ -314,6 +385,19 @@ def check_sample_memory(sample_memory, n_samples) -> int:
     return w
 
 
+def check_lookahead(lookahead, sample_memory: int) -> float:
+    """The look-ahead weight as a float: a finite number >= 0, and 0 with ``sample_memory``."""
+    if isinstance(lookahead, bool) or not isinstance(lookahead, int | float | np.floating
+                                                     | np.integer) \
+            or not np.isfinite(lookahead) or lookahead < 0:
+        raise BayesmotionError(f"lookahead must be a finite number >= 0 (0: plain predictive "
+                               f"means), got {lookahead!r}")
+    if lookahead > 0 and sample_memory:
+        raise BayesmotionError("lookahead guides step-by-step rollouts; it does not combine "
+                               "with sample_memory > 0")
+    return float(lookahead)
+
+
 def check_bounded(I: np.ndarray, I_train: np.ndarray, dynamics_linear: str) -> None:
     """Raise BayesmotionError when a latent rollout is not finite or has left the range of
     ``I_train`` (the training latents and the start) by more than ``DIVERGED`` times, instead
@@ -343,11 +427,13 @@ def check_decodes(model) -> None:
 
 def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,
              start=None, seed: int = 0, predictor: Predictor | None = None,
-             sample_memory: int = SAMPLE_MEMORY, **styles) -> Rollout:
+             sample_memory: int = SAMPLE_MEMORY, lookahead: float = 0.0,
+             **styles) -> Rollout:
     """Generate a rollout; see :meth:`FittedHGPDM.generate`."""
     check_generate_args(n_frames, n_samples, seed, {"emotion": emotion, "couple": couple,
                                                     **styles})
     sample_memory = check_sample_memory(sample_memory, n_samples)
+    lookahead = check_lookahead(lookahead, sample_memory)
     check_generate_memory(n_frames, n_samples,
                           sum(model.skeleton(a).n_joints for a in range(model.n_actors)),
                           model.predictor_rows, model.n_actors + 2, sample_memory)
@@ -388,7 +474,9 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
     int_s = tuple(style_vectors(P, int_f, [coords[f] for f in int_f]))
     P = restrict_to_styles(P, dyn_s, int_s)  # exact: drops the style cells no frame sees
     key = jax.random.PRNGKey(seed)
-    I_gen, I_var = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n_frames - o, False)
+    guide = {"guided": lookahead > 0, "lookahead": lookahead}
+    I_gen, I_var = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n_frames - o, False,
+                                    **guide)
     I = np.concatenate([I0, np.asarray(I_gen)])
     reach = np.concatenate([np.asarray(model.params["I"]), I0])  # a given start counts too
     check_bounded(I, reach, model.spec.dynamics_linear)
@@ -398,7 +486,7 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
     if n_samples:
         keys = jax.random.split(key, n_samples + 1)[1:]
         roll = jax.vmap(lambda k: dynamics_rollout(P, jnp.asarray(I0), dyn_s, k, n_frames - o,
-                                                   True, memory=sample_memory)[0])
+                                                   True, memory=sample_memory, **guide)[0])
         I_s = np.concatenate([np.broadcast_to(I0, (n_samples, o, I0.shape[1])),
                               np.asarray(roll(keys))], axis=1)
         check_bounded(I_s, reach, model.spec.dynamics_linear)
