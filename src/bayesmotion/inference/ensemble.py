@@ -88,8 +88,8 @@ def run_de(log_prob, args: tuple, p0, n_steps: int, seed: int = 0, *, static: tu
         n_steps: steps; the chain holds every step (no burn-in dropped, no thinning).
         seed: seeds the moves.
         static: hashable keyword arguments of ``log_prob`` as (name, value) pairs.
-        gamma0, sigma: the move's scale (default 2.38 / sqrt(2 d)) and its relative jitter
-            (emcee's defaults).
+        gamma0: the move's scale (default 2.38 / sqrt(2 d), emcee's).
+        sigma: the scale's relative jitter (emcee's default).
     Returns:
         EnsembleRun: chain (n_steps, W, d), log_prob (n_steps, W), accepted (W,).
     """
