@@ -3,8 +3,10 @@
     python benchmarks/synthesis.py [--quick] [--root DIR] [--out FILE]
 
 For each content group (walks; run and dash; the gestures bye and bow) one one-actor H-GPDM
-(``HGPDM(rest_frames=True, canonical_side=True)``, emotion as its style factor) is fitted on
-the group's real clips (4 emotions each) at ``fps``. Then:
+(``HGPDM(rest_frames=True, canonical_side=True)``, emotion as its style factor; with
+``periodic=True`` for the groups in ``periodic``, the walks and run/dash: their recordings
+loop) is fitted on the group's real clips (4 emotions each) at ``fps``. Every Bandai rollout
+below is generated with ``lookahead`` (``FittedHGPDM.generate(lookahead=...)``). Then:
 
 * **Judge.** An independent classifier (the 45 clip features of
   :func:`bayesmotion.features.clip_features` + logistic regression), one per real clip,
@@ -34,10 +36,11 @@ the group's real clips (4 emotions each) at ``fps``. Then:
   long as a training trial (against the real CMU handshake's), and over ``long_frames``
   frames the latent range and the motion in the last 200 frames over the first 200 (a
   handshake should come to rest, not keep shaking or explode).
-* **Mechanisms** (walks): the same fit with the paper's linear kernel term, with the stable
-  autoregression (the default), and with the stable autoregression and Wang et al.'s balanced
-  dynamics weight D / Q_I; the long-rollout statistics of the mean and of two sampled rollouts
-  of each.
+* **Mechanisms** (walks): the same fit, not periodic and without look-ahead, with the
+  paper's linear kernel term, with the stable autoregression (the default), and with the
+  stable autoregression and Wang et al.'s balanced dynamics weight D / Q_I; then the walks
+  model itself (periodic) without and with the look-ahead; the long-rollout statistics
+  (the judge's probabilities included) of the mean and of two sampled rollouts of each.
 * **Fit.** Iterations, seconds and whether the convergence criterion was met
   (``FittedHGPDM.diagnostics``).
 
@@ -102,6 +105,8 @@ class Settings:
     transition_length: int = 20
     window: int = 40
     seed: int = 0
+    periodic: tuple = ("walks", "run")  # groups fitted with HGPDM(periodic=True)
+    lookahead: float = 10.0  # generate(lookahead=...) of every Bandai rollout
 
 
 QUICK = Settings(groups={"walks": ("walk", "walk-back")}, max_iter=150, n_samples=1,
@@ -125,12 +130,14 @@ def windowed_probability(judge: LogisticRegression, motion, label: str, window: 
 
 
 def long_rollouts(model, real_speed: float, cfg: Settings, n_samples: int = 0,
-                  judge: LogisticRegression | None = None) -> dict:
+                  judge: LogisticRegression | None = None,
+                  lookahead: float | None = None) -> dict:
     """``long_frames``-frame mean rollouts per emotion and at a 50/50 mix of the first two
     (and, with ``n_samples``, that many sampled rollouts of each): latent range and limb
     motion (module docstring); with a ``judge``, its probability of each emotion's label in
     ``window``-frame windows of that emotion's mean rollout, over the first and the last 200
-    frames."""
+    frames. ``lookahead``: the rollouts' look-ahead weight (default ``cfg.lookahead``)."""
+    lookahead = cfg.lookahead if lookahead is None else lookahead
     levels = list(model.levels["emotion"])
     mix = np.zeros(len(levels))
     mix[:2] = 0.5
@@ -149,7 +156,7 @@ def long_rollouts(model, real_speed: float, cfg: Settings, n_samples: int = 0,
     for label, style in [(e, e) for e in levels] + [(f"{levels[0]}+{levels[1]} 50/50", mix)]:
         try:
             roll = model.generate(emotion=style, n_frames=cfg.long_frames, n_samples=n_samples,
-                                  seed=cfg.seed)
+                                  seed=cfg.seed, lookahead=lookahead)
         except BayesmotionError as err:
             out[label] = {"error": str(err)}
             continue
@@ -164,19 +171,27 @@ def long_rollouts(model, real_speed: float, cfg: Settings, n_samples: int = 0,
     return out
 
 
-def mechanisms(data: MotionDataset, walks_model, real_speed: float, cfg: Settings) -> dict:
-    """The stability mechanisms side by side on the walks: the paper's linear kernel term,
-    the stable autoregression (the walks model above), and the stable autoregression with
-    Wang et al.'s balanced weighting of the dynamics (w = D / Q_I); mean and sampled
-    ``long_frames``-frame rollouts of each."""
+def mechanisms(data: MotionDataset, walks_model, real_speed: float, cfg: Settings,
+               judge: LogisticRegression | None = None) -> dict:
+    """The stability mechanisms side by side on the walks, all without look-ahead unless
+    named: the paper's linear kernel term, the stable autoregression, the stable
+    autoregression with Wang et al.'s balanced weighting of the dynamics (w = D / Q_I), and
+    the walks model above (stable, periodic when ``cfg`` makes the walks periodic) without
+    and with the look-ahead; mean and sampled ``long_frames``-frame rollouts of each."""
     D = int(walks_model.data.Y[0].shape[1])
-    base = walks_model.spec
-    variants = {"kernel (paper, eq. 10)": replace(base, dynamics_linear="kernel"),
-                "stable": None,
-                f"stable, balanced (w = D / Q_I = {D / base.interaction_dim:.1f})":
-                    replace(base, dynamics_weight=D / base.interaction_dim)}
+    base = replace(walks_model.spec, periodic=False)
+    w = D / base.interaction_dim
+    variants = {"kernel (paper, eq. 10)": (replace(base, dynamics_linear="kernel"), 0.0),
+                "stable": (base, 0.0),
+                f"stable, balanced (w = D / Q_I = {w:.1f})": (replace(base, dynamics_weight=w),
+                                                              0.0)}
+    if walks_model.spec.periodic:
+        variants["stable, periodic"] = (None, 0.0)
+    if cfg.lookahead > 0:
+        variants[f"stable{', periodic' if walks_model.spec.periodic else ''}, look-ahead "
+                 f"{cfg.lookahead:g}"] = (None, cfg.lookahead)
     out = {}
-    for name, spec in variants.items():
+    for name, (spec, lookahead) in variants.items():
         t0 = time.perf_counter()
         model = walks_model if spec is None else spec.fit(data, max_iter=cfg.max_iter,
                                                           seed=cfg.seed, progress=False)
@@ -184,7 +199,9 @@ def mechanisms(data: MotionDataset, walks_model, real_speed: float, cfg: Setting
                              else "the walks model", "iterations": model.diagnostics["iterations"],
                              "converged": model.diagnostics["converged"],
                              "objective": model.diagnostics["objective"]},
-                     "rollouts": long_rollouts(model, real_speed, cfg, n_samples=2)}
+                     "lookahead": lookahead,
+                     "rollouts": long_rollouts(model, real_speed, cfg, n_samples=2, judge=judge,
+                                               lookahead=lookahead)}
         print(f"[{NAME}] mechanism {name}: done", file=sys.stderr, flush=True)
     return out
 
@@ -199,7 +216,7 @@ def transitions(model, judge: LogisticRegression, cfg: Settings) -> dict:
     for e in levels[1:]:
         try:
             roll = model.generate(emotion=Transition(levels[0], e, start, L), n_frames=T,
-                                  seed=cfg.seed)
+                                  seed=cfg.seed, lookahead=cfg.lookahead)
         except BayesmotionError as err:
             out[e] = {"error": str(err)}
             continue
@@ -272,7 +289,7 @@ def fit_group(name: str, data: MotionDataset, contents: tuple, cfg: Settings):
     trials = [t for t in data if t.labels["content"] in contents]
     group = MotionDataset(tuple(trials), {"emotion": data.levels["emotion"]}, name=name)
     spec = HGPDM(rest_frames=True, canonical_side=True, interaction_factors=("emotion",),
-                 dynamics_factors=("emotion",))
+                 dynamics_factors=("emotion",), periodic=name in cfg.periodic)
     t0 = time.perf_counter()
     model = spec.fit(group, max_iter=cfg.max_iter, seed=cfg.seed, progress=False)
     return group, model, time.perf_counter() - t0
@@ -284,7 +301,8 @@ def generated(model, trials, cfg: Settings):
     for r, t in enumerate(trials):
         try:
             yield r, t, model.generate(emotion=t.labels["emotion"], n_frames=t.n_frames,
-                                       n_samples=cfg.n_samples, start=r, seed=cfg.seed + r)
+                                       n_samples=cfg.n_samples, start=r, seed=cfg.seed + r,
+                                       lookahead=cfg.lookahead)
         except BayesmotionError as err:
             yield r, t, err
 
@@ -323,7 +341,7 @@ def group_run(name: str, data: MotionDataset, contents: tuple, judges: dict,
     long = long_rollouts(model, real_speed, cfg, judge=full_judge)
     ok_long = [v for v in long.values() if "error" not in v]
     trans = transitions(model, full_judge, cfg) if name == "walks" else None
-    mech = mechanisms(group, model, real_speed, cfg) if name == "walks" else None
+    mech = mechanisms(group, model, real_speed, cfg, full_judge) if name == "walks" else None
     mean_nat = {k: float(np.mean([n[k] for n in nat])) for k in nat[0]} if nat else {}
     return {
         "contents": list(contents), "clips": clips,
