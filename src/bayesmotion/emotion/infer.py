@@ -1,5 +1,9 @@
 """Emotion-style inference from observed motion: ``infer_emotion(model, clip)``.
 
+One concept: the inference pipeline of one clip (encode, project, assess, sample the styles,
+combine the level evidence), its stages kept together so that their order and what each
+passes on are read in one place.
+
 1. The clip is read (Trial, Motions, BVH paths, or model-space arrays), matched to the model's
    skeleton by joint names, resampled to the model's frame rate and encoded.
 2. Projection: the latents X*, I* and the clip's style vectors are found jointly by MAP

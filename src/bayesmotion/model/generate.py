@@ -1,5 +1,9 @@
 """Generation with predictive uncertainty (Taubert et al. eq. 13-16, plus sampling).
 
+One concept: a rollout, from the style arguments and the start state through the jitted
+dynamics scan (plain, sampled, path-conditioned or guided by the look-ahead) and the top-down
+mapping to decoded poses, with the checks each step needs.
+
 The dynamics layer is rolled out under ``lax.scan`` from a start state: by mean prediction, or,
 for ``n_samples > 0``, by drawing every step from the GP predictive ``N(mean, var + 1/alpha_noise)``
 (``vmap`` over samples). By default each step is drawn given the previous *values* only, not
