@@ -145,8 +145,7 @@ def minimize_scaled(params, args, statics, max_iter, round_iter: int = ROUND_ITE
     done, nfev, res = 0, 0, None
     while done < max_iter:
         a = np.abs(_diag_flat(unravel(jnp.asarray(x)), V, args, statics))
-        top = a.max() if a.size and a.max() > 0 else 1.0
-        scale = np.where(a > 0, 1.0 / np.sqrt(np.maximum(a, 1e-6 * top)), 1.0)
+        scale = diagonal_scale(a)
         n = min(round_iter, max_iter - done)
         r = _scaled_lbfgs(jnp.asarray(x), jnp.asarray(scale), n, params, *args, **statics)
         x = np.asarray(r.x, np.float64)
@@ -231,8 +230,7 @@ def minimize_scaled_many(jobs, statics, max_iter, round_iter: int = ROUND_ITER,
         while active.any():
             HV = _hvps_many(jax.vmap(unravel)(jnp.asarray(x)), V, *args, **statics)
             a = np.abs(np.sum(np.asarray(V)[None] * np.asarray(HV), 1))  # (n, d) diag H
-            top = np.where(a.max(1) > 0, a.max(1), 1.0)[:, None]
-            scale = np.where(a > 0, 1.0 / np.sqrt(np.maximum(a, 1e-6 * top)), 1.0)
+            scale = diagonal_scale(a)
             steps = np.where(active, np.minimum(round_iter, max_iter - done), 0)
             r = _scaled_lbfgs_many(jnp.asarray(x), jnp.asarray(scale), jnp.asarray(steps),
                                    params0, *args, **statics)
@@ -253,6 +251,14 @@ def minimize_scaled_many(jobs, statics, max_iter, round_iter: int = ROUND_ITER,
             res.x, res.nit = x[i].copy(), int(done[i])
             out[j] = (unravel(jnp.asarray(x[i])), res)
     return out
+
+
+def diagonal_scale(a: np.ndarray) -> np.ndarray:
+    """Coordinate scales |diag H|^(-1/2) from ``a`` = |diag H| (last axis; one row per job),
+    entries below 1e-6 of their row's largest floored there, zero entries unscaled."""
+    top = a.max(-1, keepdims=True) if a.size else np.ones(a.shape[:-1] + (1,))
+    top = np.where(top > 0, top, 1.0)
+    return np.where(a > 0, 1.0 / np.sqrt(np.maximum(a, 1e-6 * top)), 1.0)
 
 
 def _diag_flat(params, V, args, statics) -> np.ndarray:
