@@ -49,6 +49,7 @@ def test_codec_standardises_the_pose_features(tiny_data):
         codec.decode(codec.encode(m).Y)
 
 
+@pytest.mark.slow
 def test_model_fits_infers_and_round_trips(affective_model, tiny_data, tmp_path):
     model = affective_model
     assert all(isinstance(c, AffectiveCodec) for c in model.codecs)

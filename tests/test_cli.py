@@ -63,6 +63,7 @@ def test_bad_inputs_give_one_line_errors(capsys, tmp_path, tiny_model):
         capsys, ["fit", "builtin:dances", "--out", str(tmp_path / "m2.npz")])
 
 
+@pytest.mark.slow
 def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     model = tmp_path / "m.npz"
     tiny_model.save(model)
@@ -159,6 +160,7 @@ def test_demo_quick_writes_every_file(tmp_path):
     assert seen["played"] and seen["turned"] and seen["switched"]
 
 
+@pytest.mark.slow
 def test_sample_output_is_tidy(tmp_path, tiny_model):
     """Labelled progress bars; the run's pace and time left as one line; the package's warning
     as one line; no dependency's deprecation notice (arviz announces its refactor with a

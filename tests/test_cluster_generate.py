@@ -38,6 +38,7 @@ def _same(a, b):
     np.testing.assert_array_equal(a.draws, b.draws)
 
 
+@pytest.mark.slow
 def test_cluster_rollouts_equal_local_ones(post, client):
     kw = {"emotion": "happy", "n_frames": 12, "n_samples": 2, "n_draws": 4, "seed": 7}
     local = post.generate(**kw)
@@ -53,6 +54,7 @@ def test_cluster_rollouts_equal_local_ones(post, client):
           post.generate(emotion="sad", n_frames=10, n_draws=3, client=client))
 
 
+@pytest.mark.slow
 def test_workers_start_and_close_their_own_cluster(post):
     kw = {"emotion": "sad", "n_frames": 10, "n_samples": 1, "n_draws": 2, "seed": 1}
     _same(post.generate(**kw), post.generate(**kw, workers=2))

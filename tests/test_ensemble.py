@@ -81,6 +81,7 @@ def test_refuses_bad_arguments(p0, n, match):
         run_de(lp, (jnp.asarray(0.0),), p0, n)
 
 
+@pytest.mark.slow
 def test_infer_emotion_samplers_agree(tiny_model):
     """infer_emotion's default style sampler (this one, one compiled program) and emcee give
     the same style posterior: the emotion coordinates' means within 4 Monte-Carlo standard

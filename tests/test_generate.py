@@ -354,6 +354,7 @@ def test_packed_lower_triangular_products_equal_the_dense_product(n):
                                np.sum((L @ k) ** 2, 0), rtol=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("memory", [16, 5])
 def test_path_conditioned_steps_equal_the_gp_refitted_on_the_path(tiny_model, memory):
     """Each step of a path-conditioned sample is the dynamics GP's predictive given the

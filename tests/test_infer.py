@@ -16,6 +16,7 @@ def tiny_data():
     return make_tiny_dataset()
 
 
+@pytest.mark.slow
 def test_infers_the_label_of_training_trials(tiny_model, tiny_data):
     labels = tiny_data.labels("emotion")
     for trial in tiny_data.take([labels.index("happy"), labels.index("sad")]):
@@ -40,6 +41,7 @@ def test_clip_from_bvh_files_at_another_frame_rate(tiny_model, tiny_data, tmp_pa
     assert ep.label == trial.labels["emotion"]
 
 
+@pytest.mark.slow
 def test_online_inference_sharpens_on_held_out_trials(tiny_data):
     """The issue's online check: on trials held out of the fit, the posterior's entropy falls
     as frames arrive. The label entropy is 0 from the first prefix here (overconfident), so the
@@ -726,6 +728,7 @@ def test_the_seen_predictor_gives_the_clip_density_of_the_full_one(handshake_mod
         np.testing.assert_allclose(got, want, rtol=1e-11)
 
 
+@pytest.mark.slow
 def test_inference_with_the_seen_cells_follows_the_same_path(handshake_model, handshake_data,
                                                             monkeypatch):
     """infer_emotion with the seen cells takes the full predictor's optimisation path: over 20
@@ -844,6 +847,7 @@ def test_start_jitter_sets_where_each_level_projection_starts(tiny_model, tiny_d
     assert nearest.info["level_starts"] == 1
 
 
+@pytest.mark.slow
 def test_the_seen_predictor_restricts_each_layer_by_its_own_factors():
     """Interaction styles of the couple alone, dynamics styles of the emotion alone: the
     couple's cells leave the interaction layer, the emotion's the dynamics layer, and the clip

@@ -38,6 +38,7 @@ def fitted():
                                                       progress=False)
 
 
+@pytest.mark.slow
 def test_log_posterior_is_sum_of_layers_and_blocked_equals_dense(fitted):
     lp = fitted.log_posterior_fn
     p = fitted.to_device()

@@ -331,6 +331,7 @@ def test_diagnostics_bypass_arviz_numba_path(monkeypatch):
     assert Numba.numba_flag is True
 
 
+@pytest.mark.slow
 def test_posterior_predictive_decomposes_variance(tiny_model):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
@@ -355,6 +356,7 @@ def test_posterior_predictive_decomposes_variance(tiny_model):
     assert np.all(np.abs(x.mean(0) - r1.I[o]) < 4 * np.sqrt(total / x.shape[0]))
 
 
+@pytest.mark.slow
 def test_resuming_a_file_written_for_another_model_is_refused(tiny_model, tmp_path):
     """emcee resumes from the log-densities stored with the last step; a file written for a
     refit of the same size would have mixed two posteriors silently."""
@@ -410,6 +412,7 @@ def test_the_two_blocks_sum_to_the_joint_log_posterior(tiny_model):
         Target(tiny_model, block="top")
 
 
+@pytest.mark.slow
 def test_factorised_chain_holds_gamma_and_resumes_bit_for_bit(tiny_model, tmp_path):
     kw = dict(n_steps=13, burn=1, thin=1, progress=False, seed=3, gamma_every=4,
               factorise=True)
@@ -469,6 +472,7 @@ def test_independence_flag_and_burn_are_checked_before_sampling(tiny_model, monk
         bm.sample_posterior(tiny_model, n_steps=100, burn=10, progress=False)
 
 
+@pytest.mark.slow
 def test_a_file_resumes_only_with_the_independence_choice_it_was_written_with(tiny_model,
                                                                                tmp_path):
     with warnings.catch_warnings():

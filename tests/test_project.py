@@ -59,6 +59,7 @@ def _setup(model, trial, T, B):
     return params, args, statics
 
 
+@pytest.mark.slow
 def test_chunked_hessian_matches_differences_and_padding_carries_nothing(tiny_model, tiny_data,
                                                                            monkeypatch):
     from jax.flatten_util import ravel_pytree
@@ -99,6 +100,7 @@ def test_chunked_hessian_matches_differences_and_padding_carries_nothing(tiny_mo
     assert np.all(H[rows] == 0) and np.all(H[:, rows] == 0)
 
 
+@pytest.mark.slow
 def test_laplace_evidence_does_not_depend_on_the_padding(tiny_model, tiny_data):
     """The same clip and latents in a 16-frame and a 32-frame bucket: the same evidence (only
     the real frames' latents are integrated), over d = T (A Q_X + Q_I) + K - 1 coordinates."""
@@ -199,6 +201,7 @@ def test_projection_rounds_rescale_and_never_worsen(tiny_model, tiny_data, monke
     assert res.fun == pytest.approx(value, rel=1e-12) and res.fun < start
 
 
+@pytest.mark.slow
 def test_batched_projections_match_one_at_a_time(tiny_model, tiny_data):
     """minimize_scaled_many with batch=True (jobs of equal shapes under vmap, one program per
     round) returns each job's own result: the objective to rounding, the iteration count and
@@ -230,6 +233,7 @@ def test_batched_projections_match_one_at_a_time(tiny_model, tiny_data):
             assert len({r.nit for _, r in alone}) > 1 and all(r.nit < 400 for _, r in alone)
 
 
+@pytest.mark.slow
 def test_vertices_answer_does_not_depend_on_batching(tiny_model, tiny_data, monkeypatch):
     """infer_emotion's level projections batched (the accelerator default) or one at a time
     (the CPU default) give the same evidence and label probabilities once the projections

@@ -96,6 +96,7 @@ def _models(dynamics_linear="stable", optimize_style=False):
     return LogPosterior(spec, data, dense=True), LogPosterior(sspec, data), exact, params
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dynamics_linear,free", [("stable", False), ("kernel", True)])
 def test_sparse_model_with_inducing_at_every_frame_equals_the_exact_model(dynamics_linear,
                                                                            free):

@@ -139,6 +139,7 @@ def test_a_rollout_that_cannot_be_read_back_is_not_written(rollouts, tmp_path):
     assert not (tmp_path / "inf.npz").exists()
 
 
+@pytest.mark.slow
 def test_posterior_predictive_rollouts_round_trip(tiny_model, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
