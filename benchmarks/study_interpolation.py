@@ -2,7 +2,8 @@
 
     python benchmarks/study_interpolation.py [--quick] [--root DIR] [--out FILE]
                                              [--max-iter N] [--optimize-style]
-                                             [--init shared] [--table]
+                                             [--init shared|phase] [--periodic]
+                                             [--lookahead W] [--table]
 
 For each walk content and each emotion, four methods generate motion along the line from the
 neutral clip to the emotional one, ``s ∈ {0, .25, .5, .75, 1}``, and extrapolate to ``s = 1.25``:
@@ -39,7 +40,9 @@ score from the real clips (``*_vertex_error``). The H-GPDM's outputs also record
 latents run from the training latents (``latent_distance``), and ``hgpdm_dynamics`` how far
 each emotion's dynamics is from the others' one step ahead (:func:`dynamics_cross_prediction`).
 ``--init phase`` fits the H-GPDM from interaction latents on one gait-phase circle shared by
-every emotion (:func:`gait_phase`).
+every emotion (:func:`gait_phase`). ``--periodic`` fits ``HGPDM(periodic=True)`` and
+``--lookahead W`` rolls the H-GPDM out with ``generate(lookahead=W)``: the synthesis benchmark's
+settings for walks (``--periodic --lookahead 10``).
 
 Per method and pair the summary gives the Spearman correlation of normalised strength with s
 over [0, 1], the fraction of increasing steps, the calibration error mean |strength(s) - s|,
@@ -112,6 +115,8 @@ class Settings:
     max_iter: int = 1000
     optimize_style: bool = False
     latent_init: str = "pca"
+    periodic: bool = False  # HGPDM(periodic=True): each clip's end loops back to its phase
+    lookahead: float = 0.0  # generate(lookahead=...) of the H-GPDM's rollouts
     n_harmonics: int = 5
     seed: int = 0
     infer_s: tuple[float, ...] = (0.0, 0.5, 1.0)
@@ -205,7 +210,8 @@ def training_set(data: MotionDataset, cfg: Settings) -> MotionDataset:
 # --------------------------------------------------------------------------- generators
 def fit_hgpdm(train: MotionDataset, cfg: Settings):
     spec = HGPDM(latent_dim=cfg.latent_dim, interaction_dim=cfg.interaction_dim,
-                 interaction_factors=("emotion",), dynamics_factors=("emotion",))
+                 interaction_factors=("emotion",), dynamics_factors=("emotion",),
+                 periodic=cfg.periodic)
     init = phase_init(spec, train, cfg.seed) if cfg.latent_init == "phase" else cfg.latent_init
     return spec.fit(train, max_iter=cfg.max_iter, seed=cfg.seed, progress=False,
                     optimize_style=cfg.optimize_style, init=init)
@@ -327,7 +333,8 @@ def gen_hgpdm(model, train: MotionDataset, content: str, emotion: str, s: float,
     dominant = NEUTRAL if s <= 0.5 else emotion
     start = next(i for i, t in enumerate(train)
                  if t.labels["content"] == content and t.labels["emotion"] == dominant)
-    roll = model.generate(emotion=coords, n_frames=cfg.gen_frames, start=start)
+    roll = model.generate(emotion=coords, n_frames=cfg.gen_frames, start=start,
+                          lookahead=cfg.lookahead)
     return roll.to_motion()[0], {"extrapolated": roll.extrapolated, "start": roll.start,
                                  "latent_distance": latent_distance(model, roll.I)}
 
@@ -723,10 +730,13 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
 def result_name(cfg: Settings) -> str:
     """The default result file's name: the study's, with the H-GPDM's variant appended
     (``_learned_styles`` with ``--optimize-style``, ``_shared_latents`` with ``--init shared``,
-    ``_phase_latents`` with ``--init phase``)."""
+    ``_phase_latents`` with ``--init phase``, ``_periodic`` with ``--periodic``, ``_lookahead``
+    with ``--lookahead W > 0``)."""
     return (NAME + ("_learned_styles" if cfg.optimize_style else "")
             + ("_shared_latents" if cfg.latent_init == "shared" else "")
-            + ("_phase_latents" if cfg.latent_init == "phase" else ""))
+            + ("_phase_latents" if cfg.latent_init == "phase" else "")
+            + ("_periodic" if cfg.periodic else "")
+            + ("_lookahead" if cfg.lookahead > 0 else ""))
 
 
 def main(argv=None) -> int:
@@ -741,6 +751,10 @@ def main(argv=None) -> int:
                     help="the H-GPDM's latent initialisation (fit(init=...)); 'shared' starts "
                          "every emotion's trials in one region of the interaction latents, "
                          "'phase' on one gait-phase circle (gait_phase)")
+    ap.add_argument("--periodic", action="store_true",
+                    help="fit HGPDM(periodic=True): each clip's end loops back to its phase")
+    ap.add_argument("--lookahead", type=float, default=0.0,
+                    help="roll the H-GPDM out with generate(lookahead=W)")
     ap.add_argument("--table", action="store_true",
                     help="print the markdown table of an existing result (--out or the default "
                          "results file) instead of running")
@@ -758,6 +772,9 @@ def main(argv=None) -> int:
         cfg = replace(cfg, optimize_style=True)
     if a.init != "pca":
         cfg = replace(cfg, latent_init=a.init)
+    if a.lookahead < 0:
+        ap.error(f"--lookahead must be >= 0, got {a.lookahead}")
+    cfg = replace(cfg, periodic=a.periodic, lookahead=a.lookahead)
     res = run(a.quick, a.root, a.out, cfg)
     print(res.get("skipped") or res["conclusion"])
     return 0

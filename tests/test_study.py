@@ -208,3 +208,29 @@ def test_dynamics_cross_prediction_and_the_phase_start_on_a_short_fit(bandai_roo
         (row,) = [r for r in out["rows"] if r["trial"] == train[0].name and r["level"] == level]
         assert row["error_per_step"] == pytest.approx(want, rel=1e-9)
         assert row["own"] == (level == train[0].labels["emotion"])
+
+
+@pytest.mark.slow
+def test_periodic_and_lookahead_settings_reach_the_fit_and_the_rollouts(bandai_root):
+    """--periodic fits a model whose walks loop; --lookahead W rolls the H-GPDM out with
+    generate(lookahead=W), so gen_hgpdm's motion is that rollout's, and differs from W = 0's;
+    the result file is named for both settings."""
+    from dataclasses import replace
+
+    cfg = replace(study.QUICK, max_iter=3, periodic=True, lookahead=10.0)
+    assert study.result_name(cfg) == "study_interpolation_periodic_lookahead"
+    assert study.result_name(replace(cfg, lookahead=0.0)) == "study_interpolation_periodic"
+    train = study.training_set(study.load_walks(bandai_root, 15.0), cfg)
+    model = study.fit_hgpdm(train, cfg)
+    assert model.spec.periodic and np.sum(model.data.loops >= 0) >= 1
+    content, emotion = cfg.contents[0], cfg.emotions[0]
+    motion, info = study.gen_hgpdm(model, train, content, emotion, 0.75, cfg)
+    levels = list(model.levels["emotion"])
+    coords = 0.25 * np.eye(len(levels))[0] + 0.75 * np.eye(len(levels))[levels.index(emotion)]
+    start = next(i for i, t in enumerate(train)  # s > 0.5: the emotional clip's start
+                 if t.labels["content"] == content and t.labels["emotion"] == emotion)
+    want = model.generate(emotion=coords, n_frames=cfg.gen_frames, start=start, lookahead=10.0)
+    assert info["start"] == want.start
+    np.testing.assert_array_equal(motion.values, want.to_motion()[0].values)
+    plain, _ = study.gen_hgpdm(model, train, content, emotion, 0.75, replace(cfg, lookahead=0.0))
+    assert not np.allclose(plain.values, motion.values)
