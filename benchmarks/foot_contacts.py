@@ -102,7 +102,9 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
     base = {"name": NAME, "mode": "quick" if quick else "full",
             "settings": {"groups": {k: list(v) for k, v in cfg.groups.items()},
                          "fps": cfg.fps, "max_iter": cfg.max_iter, "n_samples": cfg.n_samples,
-                         "seed": cfg.seed, "speed_scale": SPEED_SCALE, "smooth": SMOOTH},
+                         "seed": cfg.seed, "periodic": list(cfg.periodic),
+                         "lookahead": cfg.lookahead, "speed_scale": SPEED_SCALE,
+                         "smooth": SMOOTH},
             "targets": TARGETS}
     if not bandai_present(root):
         result = {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
