@@ -2,8 +2,8 @@
 
     python benchmarks/study_interpolation.py [--quick] [--root DIR] [--out FILE]
                                              [--max-iter N] [--optimize-style]
-                                             [--init shared|phase] [--periodic]
-                                             [--lookahead W] [--table]
+                                             [--init shared|phase] [--rest-frames]
+                                             [--periodic] [--lookahead W] [--table]
 
 For each walk content and each emotion, four methods generate motion along the line from the
 neutral clip to the emotional one, ``s ∈ {0, .25, .5, .75, 1}``, and extrapolate to ``s = 1.25``:
@@ -40,9 +40,11 @@ score from the real clips (``*_vertex_error``). The H-GPDM's outputs also record
 latents run from the training latents (``latent_distance``), and ``hgpdm_dynamics`` how far
 each emotion's dynamics is from the others' one step ahead (:func:`dynamics_cross_prediction`).
 ``--init phase`` fits the H-GPDM from interaction latents on one gait-phase circle shared by
-every emotion (:func:`gait_phase`). ``--periodic`` fits ``HGPDM(periodic=True)`` and
-``--lookahead W`` rolls the H-GPDM out with ``generate(lookahead=W)``: the synthesis benchmark's
-settings for walks (``--periodic --lookahead 10``).
+every emotion (:func:`gait_phase`). ``--rest-frames`` fits
+``HGPDM(rest_frames=True, canonical_side=True)``, ``--periodic`` fits ``HGPDM(periodic=True)``
+and ``--lookahead W`` rolls the H-GPDM out with ``generate(lookahead=W)``: with all three
+(``--rest-frames --periodic --lookahead 10``) the H-GPDM has the synthesis benchmark's walk
+settings.
 
 Per method and pair the summary gives the Spearman correlation of normalised strength with s
 over [0, 1], the fraction of increasing steps, the calibration error mean |strength(s) - s|,
@@ -85,6 +87,7 @@ from bayesmotion.baselines.unuma import align_phase  # noqa: E402
 from bayesmotion.data.emotion import EmotionStyle  # noqa: E402
 from bayesmotion.data.motion import Motion, MotionDataset  # noqa: E402
 from bayesmotion.datasets.bandai import WALK_CONTENTS, load_bandai  # noqa: E402
+from bayesmotion.emotion.infer import infer_emotion  # noqa: E402
 from bayesmotion.errors import BayesmotionError  # noqa: E402
 from bayesmotion.evaluation.naturalness import NaturalnessReference, naturalness  # noqa: E402
 from bayesmotion.features import clip_features  # noqa: E402
@@ -116,6 +119,7 @@ class Settings:
     optimize_style: bool = False
     latent_init: str = "pca"
     periodic: bool = False  # HGPDM(periodic=True): each clip's end loops back to its phase
+    rest_frames: bool = False  # HGPDM(rest_frames=True, canonical_side=True)
     lookahead: float = 0.0  # generate(lookahead=...) of the H-GPDM's rollouts
     n_harmonics: int = 5
     seed: int = 0
@@ -211,7 +215,8 @@ def training_set(data: MotionDataset, cfg: Settings) -> MotionDataset:
 def fit_hgpdm(train: MotionDataset, cfg: Settings):
     spec = HGPDM(latent_dim=cfg.latent_dim, interaction_dim=cfg.interaction_dim,
                  interaction_factors=("emotion",), dynamics_factors=("emotion",),
-                 periodic=cfg.periodic)
+                 periodic=cfg.periodic, rest_frames=cfg.rest_frames,
+                 canonical_side=cfg.rest_frames)
     init = phase_init(spec, train, cfg.seed) if cfg.latent_init == "phase" else cfg.latent_init
     return spec.fit(train, max_iter=cfg.max_iter, seed=cfg.seed, progress=False,
                     optimize_style=cfg.optimize_style, init=init)
@@ -412,14 +417,6 @@ class Scorers:
     cache: dict                              # (id(motion), target) -> infer result, real clips
 
 
-def _infer_emotion():
-    try:
-        from bayesmotion.emotion.infer import infer_emotion
-    except ImportError:
-        return None
-    return infer_emotion
-
-
 def score(motion: Motion, target: str, sc: Scorers, infer: bool) -> dict:
     """(a) classifier and infer_emotion, (b) strength, (c) naturalness of one motion."""
     probs = sc.classifier.predict_proba(clip_features(motion)[None])[0]
@@ -451,19 +448,17 @@ def score_real(motion: Motion, target: str, sc: Scorers) -> dict:
 
 
 def score_infer(motion: Motion, target: str, sc: Scorers):
-    """infer_emotion's posterior on the first ``infer_frames`` frames, or why there is none."""
-    infer = _infer_emotion()
-    if infer is None:
-        return "not available"
+    """infer_emotion's posterior on the first ``infer_frames`` frames, or the package's reason
+    for refusing the clip."""
     levels = list(sc.model.levels["emotion"])
     cfg = sc.cfg
     t0 = time.perf_counter()
     try:
-        post = infer(sc.model, motion, frames=slice(0, cfg.infer_frames),
-                     n_steps=cfg.infer_steps, max_iter=cfg.infer_max_iter,
-                     latent_uncertainty=False, seed=cfg.seed)
-    except Exception as e:  # a colleague's new API: record the failure, finish the study
-        return {"error": f"{type(e).__name__}: {e}"}
+        post = infer_emotion(sc.model, motion, frames=slice(0, cfg.infer_frames),
+                             n_steps=cfg.infer_steps, max_iter=cfg.infer_max_iter,
+                             latent_uncertainty=False, seed=cfg.seed)
+    except BayesmotionError as e:  # the package refused this clip: record why, go on
+        return {"error": str(e)}
     mean, prob = np.asarray(post.mean), np.asarray(post.probabilities)
     k = levels.index(target)
     return {"target_mean": float(mean[k]), "p_target": float(prob[k]), "label": post.label,
@@ -715,9 +710,8 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
                  "hgpdm_frames": int(sum(t.n_frames for t in train))},
         "hgpdm_fit": {k: v for k, v in model.diagnostics.items() if k != "trace"},
         "hgpdm_dynamics": dynamics,
-        "infer_emotion": ("not available" if _infer_emotion() is None
-                          else f"run at s in {list(cfg.infer_s)} and on the real clips"
-                          if cfg.infer_s else "available, not run (infer_s is empty)"),
+        "infer_emotion": (f"run at s in {list(cfg.infer_s)} and on the real clips"
+                          if cfg.infer_s else "not run (infer_s is empty)"),
         "pairs": pairs, "summary": summary, "phase_sensitivity": phase,
         "conclusion": conclusion(summary), "headline": headlines(summary, phase, dynamics),
         "timing_s": {"hgpdm_fit": t_fit, "total": time.perf_counter() - t0},
@@ -730,11 +724,12 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
 def result_name(cfg: Settings) -> str:
     """The default result file's name: the study's, with the H-GPDM's variant appended
     (``_learned_styles`` with ``--optimize-style``, ``_shared_latents`` with ``--init shared``,
-    ``_phase_latents`` with ``--init phase``, ``_periodic`` with ``--periodic``, ``_lookahead``
-    with ``--lookahead W > 0``)."""
+    ``_phase_latents`` with ``--init phase``, ``_rest_frames`` with ``--rest-frames``,
+    ``_periodic`` with ``--periodic``, ``_lookahead`` with ``--lookahead W > 0``)."""
     return (NAME + ("_learned_styles" if cfg.optimize_style else "")
             + ("_shared_latents" if cfg.latent_init == "shared" else "")
             + ("_phase_latents" if cfg.latent_init == "phase" else "")
+            + ("_rest_frames" if cfg.rest_frames else "")
             + ("_periodic" if cfg.periodic else "")
             + ("_lookahead" if cfg.lookahead > 0 else ""))
 
@@ -751,6 +746,9 @@ def main(argv=None) -> int:
                     help="the H-GPDM's latent initialisation (fit(init=...)); 'shared' starts "
                          "every emotion's trials in one region of the interaction latents, "
                          "'phase' on one gait-phase circle (gait_phase)")
+    ap.add_argument("--rest-frames", action="store_true",
+                    help="fit HGPDM(rest_frames=True, canonical_side=True): joint angles about "
+                         "each joint's mean rotation, left/right walks on one side")
     ap.add_argument("--periodic", action="store_true",
                     help="fit HGPDM(periodic=True): each clip's end loops back to its phase")
     ap.add_argument("--lookahead", type=float, default=0.0,
@@ -774,7 +772,7 @@ def main(argv=None) -> int:
         cfg = replace(cfg, latent_init=a.init)
     if a.lookahead < 0:
         ap.error(f"--lookahead must be >= 0, got {a.lookahead}")
-    cfg = replace(cfg, periodic=a.periodic, lookahead=a.lookahead)
+    cfg = replace(cfg, periodic=a.periodic, lookahead=a.lookahead, rest_frames=a.rest_frames)
     res = run(a.quick, a.root, a.out, cfg)
     print(res.get("skipped") or res["conclusion"])
     return 0
