@@ -47,6 +47,7 @@ BENCHMARKS = [
     "study_interpolation",
     "synthesis",
     "foot_contacts",
+    "transition_lengths",
     "sample_paths",
     "bandai_inference",
     "infer_speed",

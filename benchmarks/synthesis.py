@@ -30,7 +30,9 @@ below is generated with ``lookahead`` (``FittedHGPDM.generate(lookahead=...)``).
   (:class:`bayesmotion.Transition`) centred in the rollout: the judge's (trained on every real
   clip) probability of the source and of the target emotion in sliding windows of
   ``window`` frames, the limb motion after the switch over before it, and the body-frame jerk
-  in the switch window over the jerk elsewhere (1 means no jump at the switch).
+  in the switch window over the jerk elsewhere (1 means no jump at the switch) and over the
+  jerkier side's (before or after the switch: a faster emotion jerks more), and how far the
+  interaction latents jump there (:func:`transition_row`).
 * **Built-in handshakes** (``HGPDM().fit(load_handshakes())``, ``handshake_iter`` iterations
   at most): per emotion, the minimum distance between the two right hands in a rollout as
   long as a training trial (against the real CMU handshake's), and over ``long_frames``
@@ -206,38 +208,61 @@ def mechanisms(data: MotionDataset, walks_model, real_speed: float, cfg: Setting
     return out
 
 
+def transition_row(model, judge: LogisticRegression, source: str, target: str, n_frames: int,
+                   length: int, window: int, seed: int, lookahead: float) -> dict:
+    """One ``source`` -> ``target`` mean rollout of ``n_frames`` frames whose ``length``-frame
+    smoothstep is centred in it, measured (module docstring): the judge's probabilities in
+    sliding windows, the limb motion after the switch over before it, the body-frame jerk
+    in the switch window over the jerk elsewhere and over each side's (before, after, the
+    jerkier of the two), and in the interaction latents the largest step in the switch window
+    over the median step elsewhere and the largest distance there from the training latents."""
+    start = n_frames // 2 - length // 2
+    roll = model.generate(emotion=Transition(source, target, start, length), n_frames=n_frames,
+                          seed=seed, lookahead=lookahead)
+    m = roll.to_motion()[0]
+    classes = list(judge.classes)
+    centres, p_src, p_tgt = [], [], []
+    for a in range(0, n_frames - window + 1, window // 4):
+        probs = judge.predict_proba(clip_features(m.select(slice(a, a + window)))[None])[0]
+        centres.append(a + window // 2)
+        p_src.append(float(probs[classes.index(source)]))
+        p_tgt.append(float(probs[classes.index(target)]))
+    sp = joint_speed(roll.angles[0])
+    pose = body_frame_pose(roll.positions[0], roll.skeletons[0])
+    j2 = jerk_squares(pose, m.fps).mean(-1)  # frame k: frames k .. k + 3
+    switch = np.zeros(j2.size, bool)
+    switch[max(start - 3, 0):start + length] = True
+    before, after = j2[:max(start - 3, 0)].mean(), j2[start + length:].mean()
+    at = j2[switch].mean()
+    step = np.linalg.norm(np.diff(roll.I, axis=0), axis=1)  # step k: frame k -> k + 1
+    moving = np.zeros(step.size, bool)
+    moving[max(start - 1, 0):start + length] = True
+    I_train = np.asarray(model.params["I"])
+    near = np.sqrt(((roll.I[max(start - 3, 0):start + length, None] - I_train[None]) ** 2)
+                   .sum(-1).min(1))
+    return {"window_centres": centres, "p_source": p_src, "p_target": p_tgt,
+            "p_target_first_window": p_tgt[0], "p_target_last_window": p_tgt[-1],
+            "limb_motion_after_over_before": float(sp[start + length:].mean()
+                                                    / sp[:start].mean()),
+            "jerk_switch_over_elsewhere": float(np.sqrt(at / j2[~switch].mean())),
+            "jerk_switch_over_before": float(np.sqrt(at / before)),
+            "jerk_switch_over_after": float(np.sqrt(at / after)),
+            "jerk_switch_over_jerkier_side": float(np.sqrt(at / max(before, after))),
+            "latent_step_switch_max_over_median": float(step[moving].max()
+                                                        / np.median(step[~moving])),
+            "latent_distance_switch_max": float(near.max())}
+
+
 def transitions(model, judge: LogisticRegression, cfg: Settings) -> dict:
     """Neutral -> emotion transitions in one rollout (module docstring)."""
     levels = list(model.levels["emotion"])
-    T, L, W = cfg.transition_frames, cfg.transition_length, cfg.window
-    start = T // 2 - L // 2
-    classes = list(judge.classes)
     out = {}
     for e in levels[1:]:
         try:
-            roll = model.generate(emotion=Transition(levels[0], e, start, L), n_frames=T,
-                                  seed=cfg.seed, lookahead=cfg.lookahead)
+            out[e] = transition_row(model, judge, levels[0], e, cfg.transition_frames,
+                                    cfg.transition_length, cfg.window, cfg.seed, cfg.lookahead)
         except BayesmotionError as err:
             out[e] = {"error": str(err)}
-            continue
-        m = roll.to_motion()[0]
-        centres, p_src, p_tgt = [], [], []
-        for a in range(0, T - W + 1, W // 4):
-            probs = judge.predict_proba(clip_features(m.select(slice(a, a + W)))[None])[0]
-            centres.append(a + W // 2)
-            p_src.append(float(probs[classes.index(levels[0])]))
-            p_tgt.append(float(probs[classes.index(e)]))
-        sp = joint_speed(roll.angles[0])
-        pose = body_frame_pose(roll.positions[0], roll.skeletons[0])
-        j2 = jerk_squares(pose, m.fps).mean(-1)  # frame k: frames k .. k + 3
-        switch = np.zeros(j2.size, bool)
-        switch[max(start - 3, 0):start + L] = True
-        out[e] = {"window_centres": centres, "p_source": p_src, "p_target": p_tgt,
-                  "p_target_first_window": p_tgt[0], "p_target_last_window": p_tgt[-1],
-                  "limb_motion_after_over_before": float(sp[start + L:].mean()
-                                                          / sp[:start].mean()),
-                  "jerk_switch_over_elsewhere": float(np.sqrt(j2[switch].mean()
-                                                              / j2[~switch].mean()))}
     return out
 
 

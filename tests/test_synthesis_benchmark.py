@@ -11,6 +11,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import foot_contacts  # noqa: E402
 import synthesis  # noqa: E402
+import transition_lengths  # noqa: E402
 
 
 def test_joint_speed_ignores_the_root_and_wraps_angles():
@@ -44,7 +45,7 @@ def test_targets_are_judged_against_the_natural_rate():
     assert not synthesis.targets_met(g)["long_latent_range"]
 
 
-@pytest.mark.parametrize("bench", [synthesis, foot_contacts])
+@pytest.mark.parametrize("bench", [synthesis, foot_contacts, transition_lengths])
 def test_missing_data_writes_a_skip_record(tmp_path, bench):
     out = tmp_path / "s.json"
     res = bench.run(True, root=tmp_path / "nowhere", out=out)
@@ -66,7 +67,7 @@ def test_foot_contacts_scores_are_the_mean_naturalness_ratios():
     assert got["foot_sliding_ratio"] == pytest.approx((1.0 + rows[1]["foot_sliding_ratio"]) / 2)
 
 
-@pytest.mark.parametrize("name", ["synthesis", "foot_contacts"])
+@pytest.mark.parametrize("name", ["synthesis", "foot_contacts", "transition_lengths"])
 def test_the_benchmark_is_in_the_suite(name):
     import run_all
 
@@ -88,3 +89,39 @@ def test_windowed_probability_scores_consecutive_windows():
     for k, s in enumerate(starts):
         direct = judge.predict_proba(clip_features(b.select(slice(s, s + 20)))[None])[0, col]
         assert p[k] == pytest.approx(direct)
+
+
+def test_transition_row_measures_the_rollout_it_names(tiny_model):
+    """A happy -> sad transition on the tiny model: each window's probabilities are the judge's
+    on that window of the same (seeded) rollout; the jerkier side's ratio is the smaller of the
+    ratios to each side; the latent jump and distance are finite and positive; the summary
+    takes the worst emotion of each measure."""
+    from bayesmotion.baselines import LogisticRegression
+    from bayesmotion.features import clip_features
+    from bayesmotion.model.generate import Transition
+    from tests.conftest import make_tiny_dataset
+
+    data = make_tiny_dataset()
+    judge = LogisticRegression().fit(np.stack([clip_features(t.actors[0]) for t in data]),
+                                     [t.labels["emotion"] for t in data])
+    T, L, W = 40, 6, 8
+    row = synthesis.transition_row(tiny_model, judge, "happy", "sad", T, L, W, 3, 0.0)
+    roll = tiny_model.generate(emotion=Transition("happy", "sad", T // 2 - L // 2, L),
+                               n_frames=T, seed=3)
+    m = roll.to_motion()[0]
+    col = list(judge.classes).index("sad")
+    for c, p in zip(row["window_centres"], row["p_target"], strict=True):
+        a = c - W // 2
+        assert p == pytest.approx(judge.predict_proba(
+            clip_features(m.select(slice(a, a + W)))[None])[0, col])
+    assert row["jerk_switch_over_jerkier_side"] == pytest.approx(
+        min(row["jerk_switch_over_before"], row["jerk_switch_over_after"]))
+    assert row["latent_step_switch_max_over_median"] > 0
+    assert 0 <= row["latent_distance_switch_max"] < np.inf
+    block = {"sad": row, "angry": {**row, "p_target_last_window": 0.1,
+                                   "jerk_switch_over_jerkier_side": 9.0},
+             "happy": {"error": "refused"}}
+    s = transition_lengths.summary(block)
+    assert s["errors"] == 1
+    assert s["jerk_switch_over_jerkier_side"]["worst"] == 9.0
+    assert s["p_target_last_window"]["worst"] == min(0.1, row["p_target_last_window"])

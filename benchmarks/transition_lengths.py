@@ -1,0 +1,144 @@
+"""Emotion transitions inside one walk rollout, side by side over the transition's length.
+
+    python benchmarks/transition_lengths.py [--quick]
+
+The synthesis benchmark's walk model (:func:`synthesis.fit_group`: one one-actor H-GPDM on the
+shared Bandai walks, periodic, ``synthesis.Settings``) generates ``transition_frames``-frame
+mean rollouts whose emotion changes from neutral to each other emotion along a smoothstep
+(:class:`bayesmotion.Transition`) of each length in ``LENGTHS`` frames (0: a switch at one
+frame), with the look-ahead of ``synthesis.Settings.lookahead`` and, at the synthesis
+benchmark's length, without it. Each rollout is measured by :func:`synthesis.transition_row`:
+the judge's (the affective-feature classifier trained on every real clip) probability of the
+target over sliding windows; the body-frame jerk in the switch window over the jerk before
+the switch, after it and the jerkier of the two (a faster emotion jerks more, so the jerkier
+side is the fair reference: 1 or less means no jump); the largest latent step in the switch
+window over the median step elsewhere, and how far from the training latents the rollout runs
+there. ``TARGETS``: #34's "no jump in jerk at the switch". ``run(quick)`` writes
+``results/transition_lengths.json`` atomically.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+import synthesis  # noqa: E402
+from _common import (  # noqa: E402
+    BANDAI_ROOT,
+    RESULTS,
+    bandai_present,
+    headline,
+    machine_info,
+    standalone_main,
+    write_json,
+)
+
+from bayesmotion.baselines import LogisticRegression  # noqa: E402
+from bayesmotion.errors import BayesmotionError  # noqa: E402
+from bayesmotion.features import clip_features  # noqa: E402
+
+NAME = "transition_lengths"
+LENGTHS = (0, 10, 20, 40, 80)  # smoothstep lengths in frames (10 fps)
+TARGETS = {"jerk_switch_over_jerkier_side_max": 1.0}
+KEYS = ("p_target_last_window", "jerk_switch_over_jerkier_side", "jerk_switch_over_elsewhere",
+        "latent_step_switch_max_over_median", "latent_distance_switch_max")
+
+
+def rows(model, judge: LogisticRegression, cfg, length: int, lookahead: float) -> dict:
+    """emotion -> transition_row (or the generator's error) at one length and look-ahead."""
+    levels = list(model.levels["emotion"])
+    out = {}
+    for e in levels[1:]:
+        try:
+            out[e] = synthesis.transition_row(model, judge, levels[0], e, cfg.transition_frames,
+                                              length, cfg.window, cfg.seed, lookahead)
+        except BayesmotionError as err:
+            out[e] = {"error": str(err)}
+    return out
+
+
+def summary(block: dict) -> dict:
+    """Each of ``KEYS``: its value per emotion and the worst (largest jerk and latent ratios,
+    smallest target probability)."""
+    ok = {e: r for e, r in block.items() if "error" not in r}
+    out = {}
+    for k in KEYS:
+        vals = {e: r[k] for e, r in ok.items()}
+        worst = min(vals.values()) if k.startswith("p_") else max(vals.values())
+        out[k] = {"per_emotion": vals, "worst": worst} if vals else {"per_emotion": {}}
+    out["errors"] = len(block) - len(ok)
+    return out
+
+
+def run(quick: bool, root: str | Path | None = None, out: str | Path | None = None) -> dict:
+    cfg = synthesis.QUICK if quick else synthesis.Settings()
+    cfg = replace(cfg, groups={"walks": cfg.groups["walks"]})
+    lengths = (0, cfg.transition_length) if quick else LENGTHS
+    root = Path(root) if root is not None else BANDAI_ROOT
+    out = Path(out) if out is not None else RESULTS / f"{NAME}.json"
+    base = {"name": NAME, "mode": "quick" if quick else "full",
+            "settings": {"contents": list(cfg.groups["walks"]), "fps": cfg.fps,
+                         "max_iter": cfg.max_iter, "seed": cfg.seed,
+                         "periodic": "walks" in cfg.periodic, "lookahead": cfg.lookahead,
+                         "transition_frames": cfg.transition_frames, "window": cfg.window,
+                         "lengths": list(lengths),
+                         "synthesis_length": cfg.transition_length},
+            "targets": TARGETS}
+    if not bandai_present(root):
+        result = {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
+        write_json(out, result)
+        return result
+    t0 = time.perf_counter()
+    data = synthesis.load_clips(root, cfg)
+    judge = LogisticRegression().fit(np.stack([clip_features(t.actors[0]) for t in data]),
+                                     [t.labels["emotion"] for t in data])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        _, model, fit_s = synthesis.fit_group("walks", data, cfg.groups["walks"], cfg)
+    runs = []
+    for lookahead, length in ([(cfg.lookahead, n) for n in lengths]
+                              + [(0.0, cfg.transition_length)]):
+        block = rows(model, judge, cfg, length, lookahead)
+        runs.append({"length": length, "lookahead": lookahead, "emotions": block,
+                     "summary": summary(block)})
+        print(f"[{NAME}] length {length}, look-ahead {lookahead}: done", file=sys.stderr,
+              flush=True)
+    limit = TARGETS["jerk_switch_over_jerkier_side_max"]
+    head = []
+    for r in runs:
+        s = r["summary"]
+        if "worst" not in s["jerk_switch_over_jerkier_side"]:
+            continue
+        per = s["jerk_switch_over_jerkier_side"]["per_emotion"]
+        p = s["p_target_last_window"]["per_emotion"]
+        worst = s["jerk_switch_over_jerkier_side"]["worst"]
+        head.append(headline(
+            f"walks, {r['length']}-frame transition, look-ahead {r['lookahead']:g}: jerk in the "
+            f"switch window / the jerkier side's (worst emotion)", worst, "", f"<= {limit:g}",
+            worst <= limit,
+            "; ".join(f"{e} {per[e]:.2f} (p(target) last window {p[e]:.2f})" for e in per)))
+    result = {**base, "fit": {"seconds": fit_s, "iterations": model.diagnostics["iterations"],
+                              "converged": model.diagnostics["converged"]},
+              "runs": runs, "headline": head, "status": "ok",
+              "timing_s": {"total": time.perf_counter() - t0}, "machine": machine_info()}
+    write_json(out, result)
+    return result
+
+
+def main() -> int:
+    return standalone_main(NAME, run, __doc__, "two walk contents, few iterations, two lengths",
+                           lambda r: "\n".join(map(str, r.get("headline", [])))
+                           + r.get("skipped", ""))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
