@@ -8,13 +8,13 @@ mean rollouts whose emotion changes from neutral to each other emotion along a s
 (:class:`bayesmotion.Transition`) of each length in ``LENGTHS`` frames (0: a switch at one
 frame), with the look-ahead of ``synthesis.Settings.lookahead`` and, at the synthesis
 benchmark's length, without it. Each rollout is measured by :func:`synthesis.transition_row`:
-the judge's (the affective-feature classifier trained on every real clip) probability of the
-target over sliding windows; the body-frame jerk in the switch window over the jerk before
-the switch, after it and the jerkier of the two (a faster emotion jerks more, so the jerkier
-side is the fair reference: 1 or less means no jump); the largest latent step in the switch
-window over the median step elsewhere, and how far from the training latents the rollout runs
-there. ``TARGETS``: #34's "no jump in jerk at the switch". ``run(quick)`` writes
-``results/transition_lengths.json`` atomically.
+the judge's (the affective-feature classifier trained on every real clip of the synthesis
+benchmark's groups, as there) probability of the target over sliding windows; the body-frame
+jerk in the switch window over the jerk before the switch, after it and the jerkier of the two
+(a faster emotion jerks more, so the jerkier side is the fair reference: 1 or less means no
+jump); the largest latent step in the switch window over the median step elsewhere, and how
+far from the training latents the rollout runs there. ``TARGETS``: #34's "no jump in jerk at
+the switch". ``run(quick)`` writes ``results/transition_lengths.json`` atomically.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ from __future__ import annotations
 import sys
 import time
 import warnings
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -80,8 +79,7 @@ def summary(block: dict) -> dict:
 
 
 def run(quick: bool, root: str | Path | None = None, out: str | Path | None = None) -> dict:
-    cfg = synthesis.QUICK if quick else synthesis.Settings()
-    cfg = replace(cfg, groups={"walks": cfg.groups["walks"]})
+    cfg = synthesis.QUICK if quick else synthesis.Settings()  # its groups: the judge's clips
     lengths = (0, cfg.transition_length) if quick else LENGTHS
     root = Path(root) if root is not None else BANDAI_ROOT
     out = Path(out) if out is not None else RESULTS / f"{NAME}.json"
