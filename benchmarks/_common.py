@@ -200,6 +200,12 @@ def synthetic_model_data(n_frames: int, d: int = 96, seed: int = 0, trial_len: i
     return ModelData(tuple(Ys), onehot, tof, lengths)
 
 
+def show_headlines(result: dict) -> str:
+    """A result's headline rows, one per line, or why it was skipped (``standalone_main``'s
+    ``show`` for benchmarks that write their own JSON)."""
+    return "\n".join(map(str, result.get("headline", []))) + result.get("skipped", "")
+
+
 def standalone_main(name: str, run: Callable[[bool], dict], doc: str, quick_help: str,
                     show: Callable[[dict], str]) -> int:
     """Command line of a benchmark module: ``--quick``, run, JSON to ``results/<name>.json``

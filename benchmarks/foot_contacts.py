@@ -40,6 +40,7 @@ from _common import (  # noqa: E402
     bandai_present,
     headline,
     machine_info,
+    show_headlines,
     standalone_main,
     write_json,
 )
@@ -141,8 +142,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
 
 def main() -> int:
     return standalone_main(NAME, run, __doc__, "one group of two walk contents, few iterations",
-                           lambda r: "\n".join(map(str, r.get("headline", [])))
-                           + r.get("skipped", ""))
+                           show_headlines)
 
 
 if __name__ == "__main__":

@@ -37,6 +37,7 @@ from _common import (  # noqa: E402
     bandai_present,
     headline,
     machine_info,
+    show_headlines,
     standalone_main,
     write_json,
 )
@@ -134,8 +135,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
 
 def main() -> int:
     return standalone_main(NAME, run, __doc__, "two walk contents, few iterations, two lengths",
-                           lambda r: "\n".join(map(str, r.get("headline", [])))
-                           + r.get("skipped", ""))
+                           show_headlines)
 
 
 if __name__ == "__main__":
