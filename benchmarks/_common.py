@@ -200,6 +200,13 @@ def synthetic_model_data(n_frames: int, d: int = 96, seed: int = 0, trial_len: i
     return ModelData(tuple(Ys), onehot, tof, lengths)
 
 
+def bandai_skip(base: dict, root: Path, out: Path) -> dict:
+    """The record of a Bandai benchmark run without its data: written to ``out``, returned."""
+    result = {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
+    write_json(out, result)
+    return result
+
+
 def show_headlines(result: dict) -> str:
     """A result's headline rows, one per line, or why it was skipped (``standalone_main``'s
     ``show`` for benchmarks that write their own JSON)."""

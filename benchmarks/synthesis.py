@@ -67,7 +67,15 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from _common import BANDAI_ROOT, RESULTS, bandai_present, headline, machine_info, write_json  # noqa: E402
+from _common import (  # noqa: E402
+    BANDAI_ROOT,
+    RESULTS,
+    bandai_present,
+    bandai_skip,
+    headline,
+    machine_info,
+    write_json,
+)
 
 import bayesmotion  # noqa: E402, F401  (float64 on)
 from bayesmotion.baselines import LogisticRegression  # noqa: E402
@@ -418,9 +426,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
             "settings": {**asdict(cfg), "groups": {k: list(v) for k, v in cfg.groups.items()}},
             "targets": TARGETS}
     if not bandai_present(root):
-        result = {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
-        write_json(out, result)
-        return result
+        return bandai_skip(base, root, out)
     t0 = time.perf_counter()
     data = load_clips(root, cfg)
     motions = [t.actors[0] for t in data]

@@ -35,6 +35,7 @@ from _common import (  # noqa: E402
     BANDAI_ROOT,
     RESULTS,
     bandai_present,
+    bandai_skip,
     headline,
     machine_info,
     show_headlines,
@@ -93,9 +94,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
                          "synthesis_length": cfg.transition_length},
             "targets": TARGETS}
     if not bandai_present(root):
-        result = {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
-        write_json(out, result)
-        return result
+        return bandai_skip(base, root, out)
     t0 = time.perf_counter()
     data = synthesis.load_clips(root, cfg)
     judge = LogisticRegression().fit(np.stack([clip_features(t.actors[0]) for t in data]),
