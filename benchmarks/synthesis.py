@@ -90,6 +90,7 @@ from bayesmotion.evaluation.naturalness import (  # noqa: E402
     naturalness,
 )
 from bayesmotion.features import body_frame_pose, clip_features  # noqa: E402
+from bayesmotion.gp.kernels import sqdist  # noqa: E402
 from bayesmotion.model.generate import Transition  # noqa: E402
 from bayesmotion.model.spec import HGPDM  # noqa: E402
 
@@ -246,8 +247,8 @@ def transition_row(model, judge: LogisticRegression, source: str, target: str, n
     moving = np.zeros(step.size, bool)
     moving[max(start - 1, 0):start + length] = True
     I_train = np.asarray(model.params["I"])
-    near = np.sqrt(((roll.I[max(start - 3, 0):start + length, None] - I_train[None]) ** 2)
-                   .sum(-1).min(1))
+    near = np.sqrt(np.asarray(sqdist(roll.I[max(start - 3, 0):start + length], I_train))
+                   .min(1))
     return {"window_centres": centres, "p_source": p_src, "p_target": p_tgt,
             "p_target_first_window": p_tgt[0], "p_target_last_window": p_tgt[-1],
             "limb_motion_after_over_before": float(sp[start + length:].mean()
