@@ -3,7 +3,8 @@
     python benchmarks/study_interpolation.py [--quick] [--root DIR] [--out FILE]
                                              [--max-iter N] [--optimize-style]
                                              [--init shared|phase] [--rest-frames]
-                                             [--periodic] [--lookahead W] [--table]
+                                             [--periodic] [--lookahead W]
+                                             [--synthesis-setup] [--table]
 
 For each walk content and each emotion, four methods generate motion along the line from the
 neutral clip to the emotional one, ``s ∈ {0, .25, .5, .75, 1}``, and extrapolate to ``s = 1.25``:
@@ -44,7 +45,9 @@ every emotion (:func:`gait_phase`). ``--rest-frames`` fits
 ``HGPDM(rest_frames=True, canonical_side=True)``, ``--periodic`` fits ``HGPDM(periodic=True)``
 and ``--lookahead W`` rolls the H-GPDM out with ``generate(lookahead=W)``: with all three
 (``--rest-frames --periodic --lookahead 10``) the H-GPDM has the synthesis benchmark's walk
-settings.
+settings on the study's 60-frame crops at 15 fps. ``--synthesis-setup`` also takes the synthesis
+benchmark's data and model size (:func:`synthesis_setup`: whole clips at 10 fps, interaction
+latents of dimension 6, 40-frame outputs), so every method is compared on that fit.
 
 Per method and pair the summary gives the Spearman correlation of normalised strength with s
 over [0, 1], the fraction of increasing steps, the calibration error mean |strength(s) - s|,
@@ -114,12 +117,13 @@ NATURALNESS_KEYS = ("foot_sliding", "foot_sliding_ratio", "contact_fraction", "j
 
 @dataclass(frozen=True)
 class Settings:
-    """What one run does. ``model_frames``: frames per clip the H-GPDM trains on."""
+    """What one run does. ``model_frames``: frames per clip the H-GPDM trains on (None: whole
+    clips)."""
 
     contents: tuple[str, ...] = WALK_CONTENTS
     emotions: tuple[str, ...] = ("happy", "angry", "sad")
     fps: float = 15.0
-    model_frames: int = 60
+    model_frames: int | None = 60
     gen_frames: int = 60
     latent_dim: int = 6
     interaction_dim: int = 3
@@ -138,6 +142,16 @@ class Settings:
 
 
 QUICK = Settings(contents=("walk",), emotions=("happy",), max_iter=30, infer_s=())
+
+
+def synthesis_setup(cfg: Settings) -> Settings:
+    """``cfg`` with the synthesis benchmark's walk fit (benchmarks/synthesis.py): whole clips at
+    10 fps, ``HGPDM``'s default latent dimensions (6 / 6), rest frames on the canonical side,
+    periodic, rolled out with look-ahead 10; generated clips of 40 frames (4 s, as the default
+    60 frames at 15 fps)."""
+    return replace(cfg, fps=10.0, model_frames=None, gen_frames=40, latent_dim=6,
+                   interaction_dim=6, rest_frames=True, periodic=True, lookahead=10.0,
+                   infer_frames=20)
 """One pair, 30 L-BFGS iterations, no infer_emotion (10-15 s a clip here, after a ~40 s
 compile): about 1.5 min on 2 cores."""
 
@@ -731,7 +745,13 @@ def result_name(cfg: Settings) -> str:
     """The default result file's name: the study's, with the H-GPDM's variant appended
     (``_learned_styles`` with ``--optimize-style``, ``_shared_latents`` with ``--init shared``,
     ``_phase_latents`` with ``--init phase``, ``_rest_frames`` with ``--rest-frames``,
-    ``_periodic`` with ``--periodic``, ``_lookahead`` with ``--lookahead W > 0``)."""
+    ``_periodic`` with ``--periodic``, ``_lookahead`` with ``--lookahead W > 0``;
+    ``_synthesis_setup`` alone for :func:`synthesis_setup`'s settings)."""
+    if synthesis_setup(cfg) == cfg:
+        return (NAME + ("_learned_styles" if cfg.optimize_style else "")
+                + ("_shared_latents" if cfg.latent_init == "shared" else "")
+                + ("_phase_latents" if cfg.latent_init == "phase" else "")
+                + "_synthesis_setup")
     return (NAME + ("_learned_styles" if cfg.optimize_style else "")
             + ("_shared_latents" if cfg.latent_init == "shared" else "")
             + ("_phase_latents" if cfg.latent_init == "phase" else "")
@@ -759,6 +779,11 @@ def main(argv=None) -> int:
                     help="fit HGPDM(periodic=True): each clip's end loops back to its phase")
     ap.add_argument("--lookahead", type=float, default=0.0,
                     help="roll the H-GPDM out with generate(lookahead=W)")
+    ap.add_argument("--synthesis-setup", action="store_true",
+                    help="the synthesis benchmark's walk fit and rollouts (synthesis_setup: "
+                         "whole clips at 10 fps, latent dimensions 6 / 6, rest frames, "
+                         "periodic, look-ahead 10); replaces --rest-frames, --periodic and "
+                         "--lookahead")
     ap.add_argument("--table", action="store_true",
                     help="print the markdown table of an existing result (--out or the default "
                          "results file) instead of running")
@@ -779,6 +804,8 @@ def main(argv=None) -> int:
     if a.lookahead < 0:
         ap.error(f"--lookahead must be >= 0, got {a.lookahead}")
     cfg = replace(cfg, periodic=a.periodic, lookahead=a.lookahead, rest_frames=a.rest_frames)
+    if a.synthesis_setup:
+        cfg = synthesis_setup(cfg)
     res = run(a.quick, a.root, a.out, cfg)
     print(res.get("skipped") or res["conclusion"])
     return 0

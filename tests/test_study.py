@@ -234,3 +234,29 @@ def test_periodic_and_lookahead_settings_reach_the_fit_and_the_rollouts(bandai_r
     np.testing.assert_array_equal(motion.values, want.to_motion()[0].values)
     plain, _ = study.gen_hgpdm(model, train, content, emotion, 0.75, replace(cfg, lookahead=0.0))
     assert not np.allclose(plain.values, motion.values)
+
+
+def test_synthesis_setup_is_the_synthesis_benchmarks_walk_fit(bandai_root):
+    """--synthesis-setup takes the synthesis benchmark's walk settings (its frame rate,
+    look-ahead, loops; HGPDM's default latent dimensions; rest frames on the canonical side)
+    and trains on whole clips; outputs keep the default's 4 s; its file has its own name."""
+    import synthesis
+
+    from bayesmotion.model.spec import HGPDM
+
+    syn = synthesis.Settings()
+    cfg = study.synthesis_setup(study.Settings())
+    assert cfg.fps == syn.fps and cfg.lookahead == syn.lookahead and "walks" in syn.periodic
+    assert cfg.periodic and cfg.rest_frames
+    assert (cfg.latent_dim, cfg.interaction_dim) == (HGPDM.latent_dim, HGPDM.interaction_dim)
+    default = study.Settings()
+    assert cfg.gen_frames / cfg.fps == default.gen_frames / default.fps
+    assert cfg.infer_frames / cfg.fps == default.infer_frames / default.fps
+    assert study.result_name(cfg) == "study_interpolation_synthesis_setup"
+    assert study.result_name(study.synthesis_setup(study.QUICK)) == (
+        "study_interpolation_synthesis_setup")
+    assert study.synthesis_setup(cfg) == cfg
+    data = study.load_walks(bandai_root, cfg.fps)
+    train = study.training_set(data, cfg)
+    whole = {t.name: t.n_frames for t in data}
+    assert len(train) == 16 and all(t.n_frames == whole[t.name] for t in train)
