@@ -174,3 +174,21 @@ def test_non_finite_clips_are_out_of_distribution():
     assert rec["beyond"] and in_distribution_weight(assess(ref, {"bottom": np.ones(3),
                                                                  "dynamics": np.ones(3)},
                                                            rec)) == 0.0
+
+
+def test_reference_of_a_model_without_loops_scores_every_frame_after_the_first_o(tiny_model):
+    """Without loops the dynamics' rows are every recording's frames after its first o, each
+    held out with its recording: the reference equals held_out_stats on that grouping."""
+    from bayesmotion.emotion.ood import training_reference
+
+    P = tiny_model.predictor()
+    tof = np.asarray(tiny_model.data.trial_of_frame)
+    o = tiny_model.spec.order
+    starts = np.flatnonzero(np.r_[True, tof[1:] != tof[:-1]])
+    first = np.zeros(tof.size, bool)
+    for k in range(o):
+        first[starts + k] = True
+    z2, nlpd = held_out_stats(P.dyn, tof[~first])
+    ref = training_reference(P, tof, o)
+    np.testing.assert_array_equal(ref["dynamics"]["values"], z2)
+    np.testing.assert_array_equal(ref["dynamics_density"]["values"], nlpd)

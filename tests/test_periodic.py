@@ -187,3 +187,29 @@ def test_posterior_generation_passes_the_lookahead(tiny_model):
     np.testing.assert_allclose(r.I, one.I, atol=1e-12)
     plain = post.generate(emotion="happy", n_frames=15, n_draws=1)
     assert not np.allclose(r.I, plain.I)
+
+
+def test_out_of_distribution_reference_holds_out_the_loop_rows_with_their_recording(
+        walk_model):
+    """A periodic model's dynamics has the loop rows besides every recording's frames after
+    the first o: the reference scores all of them, each held out with its own recording, and
+    every value is finite and reproducible. Without the loops the rows and recordings do not
+    match, which is refused rather than scored."""
+    from bayesmotion.emotion.ood import held_out_stats, training_reference
+
+    P = walk_model.predictor()
+    tof = np.asarray(walk_model.data.trial_of_frame)
+    o, loops = walk_model.spec.order, walk_model.data.loops
+    n_rows = P.dyn.A.shape[0]
+    assert n_rows == tof.size - o * len(walk_model.data.lengths) + 2 * int(np.sum(loops >= 0))
+    ref = training_reference(P, tof, o, loops=loops)
+    for name in ("dynamics", "dynamics_density"):
+        assert ref[name]["values"].shape == (n_rows,)
+        assert np.all(np.isfinite(ref[name]["values"]))
+    again = training_reference(P, tof, o, loops=loops)
+    np.testing.assert_array_equal(again["dynamics_density"]["values"],
+                                  ref["dynamics_density"]["values"])
+    with pytest.raises(bm.BayesmotionError, match="one recording per training row"):
+        training_reference(P, tof, o)
+    with pytest.raises(bm.BayesmotionError, match="one recording per training row"):
+        held_out_stats(P.dyn, tof[:n_rows - 1])

@@ -491,10 +491,12 @@ def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:
                 model.spec, model.data, {k: jnp.asarray(v) for k, v in model.params.items()},
                 model.diagnostics.get("jitter", 1e-8)))
             model._cache["ood_reference"] = training_reference(
-                model.predictor(), model.data.trial_of_frame, model.spec.order, sparse)
+                model.predictor(), model.data.trial_of_frame, model.spec.order, sparse,
+                model.data.loops)
         reference = model._cache["ood_reference"]
     else:  # a posterior draw's predictor
-        reference = training_reference(P, model.data.trial_of_frame, model.spec.order)
+        reference = training_reference(P, model.data.trial_of_frame, model.spec.order,
+                                       loops=model.data.loops)
     dyn = styles_from(params, fixed, tuple(model.spec.dynamics_factors), P.level_vectors)
     z2 = clip_z2(P, np.asarray(params["X"])[:, :T], np.asarray(params["I"])[:T], Ys, dyn)
     # a clip shorter than the typical training recording is compared with stretches of its

@@ -53,7 +53,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from bayesmotion.errors import BayesmotionError
 from bayesmotion.gp.sparse import held_out_blocks
+from bayesmotion.model.layers import DynamicsIndex
 from bayesmotion.model.predict import (
     LayerFit,
     Predictor,
@@ -97,6 +99,10 @@ def held_out_stats(fit: LayerFit | SparseLayer, groups: np.ndarray
     (:func:`bayesmotion.model.predict.sparse_layers`), whose K is its approximation
     Q + noise I, inverted by Woodbury (:func:`bayesmotion.gp.sparse.held_out_blocks`)."""
     M = fit.outputs.shape[0] if isinstance(fit, SparseLayer) else fit.A.shape[0]
+    groups = np.asarray(groups)
+    if groups.shape != (M,):
+        raise BayesmotionError(f"held_out_stats needs one recording per training row of the "
+                               f"layer ({M}), got {groups.shape}")
     z2 = np.empty(M)
     var = np.empty(M)
     for g in np.unique(groups):
@@ -120,15 +126,18 @@ def _summary(z: np.ndarray) -> dict:
 
 
 def training_reference(P: Predictor, trial_of_frame: np.ndarray, order: int,
-                       sparse: dict | None = None) -> dict:
+                       sparse: dict | None = None, loops=None) -> dict:
     """Per statistic (:data:`STATISTICS`): the training frames' held-out-recording values
     (bottom: averaged over actors), their median and ``REFERENCE_QUANTILE`` quantile.
 
     Args:
-        trial_of_frame: (N,) training recording of every frame; order: the dynamics' order
-            (its outputs are every recording's frames after the first ``order``).
+        trial_of_frame: (N,) training recording of every frame (each recording's frames
+            contiguous); order: the dynamics' order (its outputs are every recording's frames
+            after the first ``order``).
         sparse: a sparse model's :func:`bayesmotion.model.predict.sparse_layers` (its
             predictor holds the inducing inputs, not the training rows); None for an exact one.
+        loops: a periodic model's loop frames (``ModelData.loops``): its dynamics also has the
+            rows that close each loop, held out with their recording.
     """
     tof = np.asarray(trial_of_frame)
     if sparse is not None:
@@ -138,10 +147,8 @@ def training_reference(P: Predictor, trial_of_frame: np.ndarray, order: int,
         dyn_layer = P.dyn
     bottom = [held_out_stats(fit, tof) for fit in layers]
     starts = np.flatnonzero(np.r_[True, tof[1:] != tof[:-1]])
-    first = np.zeros(tof.size, bool)
-    for k in range(order):
-        first[starts + k] = True
-    dyn = held_out_stats(dyn_layer, tof[~first])
+    index = DynamicsIndex(np.diff(np.r_[starts, tof.size]), order, loops)
+    dyn = held_out_stats(dyn_layer, tof[index.out])
     return {"bottom": _summary(np.mean([b[0] for b in bottom], axis=0)),
             "bottom_density": _summary(np.mean([b[1] for b in bottom], axis=0)),
             "dynamics": _summary(dyn[0]), "dynamics_density": _summary(dyn[1])}
