@@ -135,6 +135,12 @@ def test_demo_quick_writes_every_file(tmp_path):
     s = json.loads((out / "summary.json").read_text())
     for key in ("fit", "posterior", "generation", "interpolation", "inference"):
         assert key in s
+    # the fit says whether it converged, and the report why the demo stops where it does
+    assert s["fit"]["convergence"].startswith(
+        "converged after" if s["fit"]["converged"] else "not converged: stopped at its "
+                                                        "iteration limit after 150 iterations")
+    if not s["fit"]["converged"]:
+        assert "demo's time budget allows 150 iterations" in (out / "report.html").read_text()
     assert {"max_rhat", "min_ess_bulk", "mean_acceptance"} <= set(s["posterior"])
     # the quick posterior (hyperparameters, styles held at the MAP) converges in its budget
     assert s["posterior"]["style_vectors"] == "held at the MAP"
@@ -204,3 +210,14 @@ def test_sample_passes_its_sampler_flags(tmp_path, tiny_model, monkeypatch):
         assert main(["sample", str(model), "--out", str(tmp_path / "p.nc"), *flags]) != 0
         assert (seen["hmc"], seen["factorise"], seen["independence"],
                 seen["fix_styles"]) == want
+
+
+def test_fit_says_whether_it_converged(capsys, tmp_path):
+    """`bayesmotion fit` reports the fit's convergence in words (optim.minimize's
+    convergence_note): a fit stopped at its iteration limit says so."""
+    out = tmp_path / "m.npz"
+    assert main(["fit", "builtin:handshakes", "--fps", "5", "--max-iter", "3",
+                 "--latent-dim", "2", "--interaction-dim", "2", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "not converged: stopped at its iteration limit after 3 iterations" in printed
+    assert out.stat().st_size > 0

@@ -120,7 +120,7 @@ def test_the_stall_criterion_is_relative_to_the_objective_over_a_window():
 
 
 def test_map_optimize_stops_at_the_stall_test_and_says_so():
-    from bayesmotion.optim.minimize import map_optimize, stalled
+    from bayesmotion.optim.minimize import convergence_note, map_optimize, stalled
 
     def logp(p, jitter):  # 20-D Rosenbrock: many iterations from (-1.2, 1, ...)
         x = p["x"]
@@ -139,12 +139,29 @@ def test_map_optimize_stops_at_the_stall_test_and_says_so():
     assert early["convergence"]["relative_fall_last_window"] < 0.5
     _, capped = map_optimize(logp, x0, max_iter=10, rtol=0.0, progress=False)
     assert not capped["converged"] and capped["convergence"]["max_iter_reached"]
+    # what the demo report and `bayesmotion fit` say about it
+    assert convergence_note(early) == (
+        f"converged after {early['iterations']} iterations ({early['message']})")
+    assert convergence_note(capped) == (
+        "not converged: stopped at its iteration limit after 10 iterations (no stall test: "
+        "rtol=0)")
+    _, short = map_optimize(logp, x0, max_iter=10, progress=False)
+    assert convergence_note(short) == (
+        "not converged: stopped at its iteration limit after 10 iterations; too few iterations "
+        "for the stall test (a fall below 0.001% of the objective over 100 iterations)")
+    _, long = map_optimize(logp, x0, max_iter=40, rtol=1e-9, window=20, progress=False)
+    fall = long["convergence"]["relative_fall_last_window"]
+    assert not long["converged"] and fall > 1e-9
+    assert convergence_note(long) == (
+        f"not converged: stopped at its iteration limit after 40 iterations; the objective "
+        f"still fell by {100 * fall:.2g}% over the last 20 iterations, where converged means "
+        f"below 1e-07%")
 
 
 def test_map_optimize_stops_at_its_time_budget_and_does_not_call_that_converged():
     import time
 
-    from bayesmotion.optim.minimize import map_optimize
+    from bayesmotion.optim.minimize import convergence_note, map_optimize
 
     def logp(p, jitter):
         x = p["x"]
@@ -157,4 +174,6 @@ def test_map_optimize_stops_at_its_time_budget_and_does_not_call_that_converged(
     assert d["iterations"] == 1  # the first iteration is past a zero budget
     assert not d["converged"] and d["convergence"]["time_limit_reached"]
     assert d["message"] == "STOP: TIME LIMIT OF 0 S REACHED"
+    assert convergence_note(d).startswith("not converged: stopped at its time limit after 1 "
+                                          "iterations")
     assert time.perf_counter() - t0 < 60

@@ -57,6 +57,7 @@ from bayesmotion.inference.sample import sample_posterior
 from bayesmotion.model.generate import MAX_SAMPLE_MEMORY, SAMPLE_MEMORY
 from bayesmotion.model.io import load
 from bayesmotion.model.spec import HGPDM
+from bayesmotion.optim.minimize import convergence_note
 from bayesmotion.viz.animate import animate
 from bayesmotion.viz.viewer import load_clips, rollout_clip, write_viewer
 
@@ -303,8 +304,8 @@ def _cmd_fit(a):
         ds, max_iter=a.max_iter)
     m.save(a.out)
     d = m.diagnostics
-    print(f"fitted {len(ds)} trials in {d['seconds']:.1f} s ({d['iterations']} iterations, "
-          f"objective {d['objective']:.1f}, {d['message']}); wrote {a.out}")
+    print(f"fitted {len(ds)} trials in {d['seconds']:.1f} s (objective {d['objective']:.1f}; "
+          f"{convergence_note(d)}); wrote {a.out}")
 
 
 def _cmd_sample(a):

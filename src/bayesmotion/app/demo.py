@@ -25,6 +25,7 @@ from bayesmotion.evaluation.evaluate import (
 from bayesmotion.inference.diagnostics import convergence
 from bayesmotion.inference.sample import sample_posterior
 from bayesmotion.model.spec import HGPDM
+from bayesmotion.optim.minimize import convergence_note
 from bayesmotion.validate import output_dir
 from bayesmotion.viz.animate import animate
 from bayesmotion.viz.plots import save_figure
@@ -111,6 +112,7 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     d = model.diagnostics
     summary["fit"] = {k: d[k] for k in ("seconds", "iterations", "objective",
                                         "initial_objective", "converged", "message", "grad_norm")}
+    summary["fit"]["convergence"] = convergence_note(d)
     fig, ax = plt.subplots(figsize=(5, 3))
     ax.plot(d["trace"])
     ax.set(xlabel="L-BFGS iteration", ylabel="negative log-posterior", title="MAP fit")
@@ -225,8 +227,13 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     summary["seconds_total"] = time.perf_counter() - t_all
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, default=float))
     sections = [
-        ("MAP fit", [out / "fit_trace.png", f"<p>{d['iterations']} iterations, "
-                     f"{d['seconds']:.1f} s, {html.escape(str(d['message']))}</p>"]),
+        ("MAP fit", [out / "fit_trace.png", f"<p>{d['seconds']:.1f} s, "
+                     f"{html.escape(convergence_note(d))}."
+                     + ("" if d["converged"] else
+                        f" The {'quick' if quick else 'full'} demo's time budget allows "
+                        f"{cfg['max_iter']} iterations; the generated handshakes and the "
+                        f"posterior below are those of this fit.")
+                     + "</p>"]),
         ("Posterior (emcee)" + (": hyperparameters, style vectors held at the MAP"
                                 if cfg["fix_styles"] else ""),
          [f"<p>{html.escape(POSTERIOR_NOTE[cfg['fix_styles']].format(ndim=post.target.ndim))}"

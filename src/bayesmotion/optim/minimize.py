@@ -29,6 +29,31 @@ def stalled(trace, window: int = CONVERGENCE_WINDOW, rtol: float = CONVERGENCE_R
     return bool(change < rtol), float(change)
 
 
+def convergence_note(diagnostics: dict) -> str:
+    """One sentence on a MAP fit's convergence from its ``diagnostics``: converged, and by which
+    test; or not, where it stopped (iteration limit, time limit, scipy's message) and how fast
+    the objective was still falling against the stall test's threshold."""
+    conv = diagnostics.get("convergence") or {}
+    n = diagnostics.get("iterations")
+    if diagnostics.get("converged"):
+        return f"converged after {n} iterations ({diagnostics.get('message', '')})"
+    rtol = conv.get("rtol", CONVERGENCE_RTOL)
+    window = conv.get("window", CONVERGENCE_WINDOW)
+    where = ("at its time limit" if conv.get("time_limit_reached")
+             else "at its iteration limit" if conv.get("max_iter_reached")
+             else f"({diagnostics.get('message', 'no message')})")
+    fall = conv.get("relative_fall_last_window")
+    if rtol <= 0:
+        rest = " (no stall test: rtol=0)"
+    elif fall is None:
+        rest = (f"; too few iterations for the stall test (a fall below {100 * rtol:.2g}% of "
+                f"the objective over {window} iterations)")
+    else:
+        rest = (f"; the objective still fell by {100 * fall:.2g}% over the last {window} "
+                f"iterations, where converged means below {100 * rtol:.2g}%")
+    return f"not converged: stopped {where} after {n} iterations{rest}"
+
+
 def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: float = 1e-5,
                  ftol: float = 1e-10, rtol: float = CONVERGENCE_RTOL,
                  window: int = CONVERGENCE_WINDOW, max_seconds: float | None = None,
@@ -128,7 +153,8 @@ def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: f
         "convergence": {"criterion": f"scipy's gtol={gtol:g} / ftol={ftol:g}, or a relative "
                                      f"fall of the objective < {rtol:g} over {window} "
                                      f"iterations",
-                        "met": converged, "relative_fall_last_window": change,
+                        "met": converged, "rtol": rtol, "window": window,
+                        "relative_fall_last_window": change,
                         "max_iter_reached": int(res.nit) >= max_iter and not converged,
                         "time_limit_reached": bool(state.get("out_of_time")) and not converged},
         "jitter": JITTER_LADDER[state["level"]],
