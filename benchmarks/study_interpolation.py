@@ -142,6 +142,8 @@ class Settings:
 
 
 QUICK = Settings(contents=("walk",), emotions=("happy",), max_iter=30, infer_s=())
+"""One pair, 30 L-BFGS iterations, no infer_emotion (10-15 s a clip here, after a ~40 s
+compile): about 1.5 min on 2 cores."""
 
 
 def synthesis_setup(cfg: Settings) -> Settings:
@@ -152,8 +154,6 @@ def synthesis_setup(cfg: Settings) -> Settings:
     return replace(cfg, fps=10.0, model_frames=None, gen_frames=40, latent_dim=6,
                    interaction_dim=6, rest_frames=True, periodic=True, lookahead=10.0,
                    infer_frames=20)
-"""One pair, 30 L-BFGS iterations, no infer_emotion (10-15 s a clip here, after a ~40 s
-compile): about 1.5 min on 2 cores."""
 
 
 # --------------------------------------------------------------------------- statistics
@@ -167,8 +167,9 @@ def spearman(x, y) -> float:
     return float(np.corrcoef(rx, ry)[0, 1])
 
 
-def summarise(outputs: list[dict]) -> dict:
-    """Per-method summary of one pair's outputs (module docstring)."""
+def summarise(outputs: list[dict], target: str | None = None) -> dict:
+    """Per-method summary of one pair's outputs (module docstring); with the pair's ``target``
+    emotion also how ``infer_emotion`` labels the 50/50 output (:func:`infer_summary`)."""
     by_s = {o["s"]: o for o in outputs if "error" not in o}
     inside = [s for s in S_VALUES if s <= 1.0 and s in by_s]
     if len(inside) < 2:
@@ -208,6 +209,7 @@ def summarise(outputs: list[dict]) -> dict:
     if len(inf) >= 3:
         out["infer_spearman"] = spearman(list(inf), list(inf.values()))
         out["infer_target_mean"] = list(inf.values())
+        out.update(infer_summary(by_s, target))
     for k in ("foot_sliding_ratio", "jerk_ratio", "jerk_local_ratio", "joint_limit_violations"):
         out[f"mean_{k}"] = float(np.mean([o["naturalness"][k] for o in by_s.values()]))
     return out
@@ -560,8 +562,27 @@ def study_pair(data, content, emotion, model, train, reference, cfg, cache) -> d
                                 **score(motion, emotion, sc, s in cfg.infer_s)})
             except BayesmotionError as err:  # e.g. a clip too short for two gait cycles
                 outputs.append({"s": s, "error": str(err)})
-        pair["methods"][method] = {"outputs": outputs, "summary": summarise(outputs)}
+        pair["methods"][method] = {"outputs": outputs, "summary": summarise(outputs, emotion)}
     return pair
+
+
+def infer_summary(by_s: dict, target: str | None) -> dict:
+    """``infer_emotion``'s reading of one pair's outputs at s = 0, 0.5 and 1: the target's
+    coordinate at each (``infer_target_mean_at_*``), their mean |coordinate - s|
+    (``infer_calibration_error``), and the 50/50 output's label as the target, the source
+    (neutral) or another emotion (``infer_label_at_half``; with ``target``)."""
+    got = {s: by_s[s].get("infer_emotion") for s in (0.0, 0.5, 1.0) if s in by_s}
+    got = {s: v for s, v in got.items() if isinstance(v, dict) and "target_mean" in v}
+    if len(got) < 3:
+        return {}
+    out = {f"infer_target_mean_at_{s:g}": float(v["target_mean"]) for s, v in got.items()}
+    out["infer_calibration_error"] = float(np.mean([abs(v["target_mean"] - s)
+                                                    for s, v in got.items()]))
+    if target is not None:
+        label = got[0.5]["label"]
+        out["infer_label_at_half"] = ("target" if label == target else
+                                      "source" if label == NEUTRAL else "other")
+    return out
 
 
 def aggregate(pairs: list[dict]) -> dict:
@@ -573,6 +594,10 @@ def aggregate(pairs: list[dict]) -> dict:
         keys = sorted({k for s in sums for k, v in s.items() if isinstance(v, float | int)})
         agg = {k: float(np.mean([s[k] for s in sums if s.get(k) is not None])) for k in keys}
         agg["n_pairs"] = len(sums)
+        halves = [s["infer_label_at_half"] for s in sums if "infer_label_at_half" in s]
+        if halves:  # how many 50/50 outputs infer_emotion labels as what
+            agg["infer_labels_at_half"] = {k: halves.count(k)
+                                           for k in ("target", "source", "other")}
         agg["interpolates_emotion"] = bool(sums) and (
             agg["strength_spearman"] >= CRITERIA["spearman_min"]
             and agg["strength_monotonicity"] >= CRITERIA["monotonicity_min"]
@@ -741,6 +766,44 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
     return result
 
 
+def _same(a, b) -> bool:
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, float | int | list) and isinstance(b, float | int | list):
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        return a.shape == b.shape and bool(np.allclose(a, b, rtol=1e-12, atol=0, equal_nan=True))
+    return a == b
+
+
+def rescore(path: Path) -> dict:
+    """Add the summaries a stored result lacks (e.g. :func:`infer_summary`'s) from its own
+    per-pair outputs and rewrite it atomically, with ``rescored_utc``. Nothing measured is
+    redone, and every summary the file already holds must come out the same from its outputs,
+    or nothing is written (a SystemExit names the first difference)."""
+    import json
+    from datetime import UTC, datetime
+
+    stored = json.loads(path.read_text())
+    for pair in stored["pairs"]:
+        for method, res in pair["methods"].items():
+            new = summarise(res["outputs"], pair["emotion"])
+            for k, v in res["summary"].items():
+                if not _same(v, new.get(k)):
+                    raise SystemExit(f"{path.name}: {pair['content']} {pair['emotion']} "
+                                     f"{method} {k}: stored {v!r}, recomputed {new.get(k)!r}")
+            res["summary"] = {**new, **res["summary"]}
+    for method, agg in aggregate(stored["pairs"]).items():
+        old = stored["summary"][method]
+        for k, v in old.items():
+            if not _same(v, agg.get(k)):
+                raise SystemExit(f"{path.name}: summary {method} {k}: stored {v!r}, "
+                                 f"recomputed {agg.get(k)!r}")
+        stored["summary"][method] = {**agg, **old}
+    stored["rescored_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
+    write_json(path, stored)
+    return stored
+
+
 def result_name(cfg: Settings) -> str:
     """The default result file's name: the study's, with the H-GPDM's variant appended
     (``_learned_styles`` with ``--optimize-style``, ``_shared_latents`` with ``--init shared``,
@@ -784,6 +847,9 @@ def main(argv=None) -> int:
                          "whole clips at 10 fps, latent dimensions 6 / 6, rest frames, "
                          "periodic, look-ahead 10); replaces --rest-frames, --periodic and "
                          "--lookahead")
+    ap.add_argument("--rescore", action="store_true",
+                    help="no run: add the summaries a stored result (--out or the flags' "
+                         "default file) lacks from its per-pair outputs (rescore)")
     ap.add_argument("--table", action="store_true",
                     help="print the markdown table of an existing result (--out or the default "
                          "results file) instead of running")
@@ -805,7 +871,15 @@ def main(argv=None) -> int:
         ap.error(f"--lookahead must be >= 0, got {a.lookahead}")
     cfg = replace(cfg, periodic=a.periodic, lookahead=a.lookahead, rest_frames=a.rest_frames)
     if a.synthesis_setup:
+        if a.lookahead not in (0.0, 10.0):
+            ap.error(f"--synthesis-setup rolls out with look-ahead 10; --lookahead "
+                     f"{a.lookahead:g} contradicts it")
         cfg = synthesis_setup(cfg)
+    if a.rescore:
+        path = Path(a.out) if a.out else RESULTS / f"{result_name(cfg)}.json"
+        rescore(path)
+        print(f"{path.name}: summaries added")
+        return 0
     res = run(a.quick, a.root, a.out, cfg)
     print(res.get("skipped") or res["conclusion"])
     return 0

@@ -260,3 +260,40 @@ def test_synthesis_setup_is_the_synthesis_benchmarks_walk_fit(bandai_root):
     train = study.training_set(data, cfg)
     whole = {t.name: t.n_frames for t in data}
     assert len(train) == 16 and all(t.n_frames == whole[t.name] for t in train)
+
+
+def test_infer_summary_and_rescore_on_the_stored_synthesis_setup_result(tmp_path):
+    """infer_summary reads infer_emotion's answers at s = 0, 0.5, 1 (target coordinate, mean
+    |coordinate - s|, the 50/50 label as target / source / other); --rescore adds such
+    summaries to a stored result from its own outputs, refusing one whose stored summaries
+    its outputs do not reproduce."""
+    outs = {s: {"infer_emotion": {"target_mean": m, "label": lab}}
+            for s, m, lab in [(0.0, 0.1, "neutral"), (0.5, 0.2, "sad"), (1.0, 0.7, "happy")]}
+    got = study.infer_summary(outs, "happy")
+    assert got["infer_target_mean_at_0.5"] == 0.2 and got["infer_label_at_half"] == "other"
+    assert got["infer_calibration_error"] == pytest.approx((0.1 + 0.3 + 0.3) / 3)
+    assert study.infer_summary({0.0: outs[0.0], 1.0: outs[1.0]}, "happy") == {}
+    src = study.RESULTS / "study_interpolation_synthesis_setup.json"
+    stored = json.loads(src.read_text())
+    keys = [k for k in stored["summary"]["hgpdm"] if k.startswith("infer_")
+            and k != "infer_spearman"]
+    assert {"infer_calibration_error", "infer_labels_at_half"} <= set(keys)
+    stripped = json.loads(src.read_text())
+    for pair in stripped["pairs"]:
+        for res in pair["methods"].values():
+            for k in [k for k in res["summary"] if k in keys or k == "infer_label_at_half"]:
+                del res["summary"][k]
+    for agg in stripped["summary"].values():
+        for k in keys:
+            agg.pop(k, None)
+    path = tmp_path / "stripped.json"
+    path.write_text(json.dumps(stripped))
+    back = study.rescore(path)
+    for k in keys:
+        assert back["summary"]["hgpdm"][k] == stored["summary"]["hgpdm"][k], k
+    labels = back["summary"]["hgpdm"]["infer_labels_at_half"]
+    assert sum(labels.values()) == 12
+    stripped["summary"]["rbf"]["axis_spearman"] += 0.01  # a summary its outputs do not give
+    path.write_text(json.dumps(stripped))
+    with pytest.raises(SystemExit, match="summary rbf axis_spearman"):
+        study.rescore(path)
