@@ -140,6 +140,8 @@ def test_map_optimize_stops_at_the_stall_test_and_says_so():
     _, capped = map_optimize(logp, x0, max_iter=10, rtol=0.0, progress=False)
     assert not capped["converged"] and capped["convergence"]["max_iter_reached"]
     # what the demo report and `bayesmotion fit` say about it
+    assert convergence_note(full) == (
+        f"converged after {full['iterations']} iterations ({full['message']})")
     assert convergence_note(early) == (
         f"converged after {early['iterations']} iterations ({early['message']})")
     assert convergence_note(capped) == (
@@ -177,3 +179,24 @@ def test_map_optimize_stops_at_its_time_budget_and_does_not_call_that_converged(
     assert convergence_note(d).startswith("not converged: stopped at its time limit after 1 "
                                           "iterations")
     assert time.perf_counter() - t0 < 60
+
+
+def test_convergence_note_reads_older_and_abnormal_diagnostics():
+    """Diagnostics without the stall test's entries (older model files), a scipy stop other
+    than the limits, and an empty record each get a sentence that claims nothing unrecorded."""
+    from bayesmotion.optim.minimize import convergence_note
+
+    old = {"iterations": 1000, "converged": False, "message": "STOP: TOTAL NO. OF ITERATIONS "
+           "REACHED LIMIT"}
+    assert convergence_note(old) == (
+        "not converged: stopped (STOP: TOTAL NO. OF ITERATIONS REACHED LIMIT) after 1000 "
+        "iterations; the stall test's result is not recorded")
+    search = {"iterations": 37, "converged": False, "message": "ABNORMAL_TERMINATION_IN_LNSRCH",
+              "convergence": {"met": False, "relative_fall_last_window": None,
+                              "max_iter_reached": False, "time_limit_reached": False}}
+    assert convergence_note(search) == (
+        "not converged: stopped (ABNORMAL_TERMINATION_IN_LNSRCH) after 37 iterations; too few "
+        "iterations for the stall test (a fall below 0.001% of the objective over 100 "
+        "iterations)")
+    assert convergence_note({}) == "not converged; the stall test's result is not recorded"
+    assert convergence_note({"converged": True}) == "converged"

@@ -32,26 +32,32 @@ def stalled(trace, window: int = CONVERGENCE_WINDOW, rtol: float = CONVERGENCE_R
 def convergence_note(diagnostics: dict) -> str:
     """One sentence on a MAP fit's convergence from its ``diagnostics``: converged, and by which
     test; or not, where it stopped (iteration limit, time limit, scipy's message) and how fast
-    the objective was still falling against the stall test's threshold."""
+    the objective was still falling against the stall test's threshold. Diagnostics of older
+    model files lack some of these entries; the sentence then says what is not recorded."""
     conv = diagnostics.get("convergence") or {}
     n = diagnostics.get("iterations")
+    after = f" after {n} iterations" if n is not None else ""
+    message = diagnostics.get("message")
     if diagnostics.get("converged"):
-        return f"converged after {n} iterations ({diagnostics.get('message', '')})"
+        return f"converged{after}" + (f" ({message})" if message else "")
     rtol = conv.get("rtol", CONVERGENCE_RTOL)
     window = conv.get("window", CONVERGENCE_WINDOW)
     where = ("at its time limit" if conv.get("time_limit_reached")
              else "at its iteration limit" if conv.get("max_iter_reached")
-             else f"({diagnostics.get('message', 'no message')})")
+             else f"({message})" if message else "")
+    head = "not converged: stopped " + where if where else "not converged"
     fall = conv.get("relative_fall_last_window")
     if rtol <= 0:
         rest = " (no stall test: rtol=0)"
-    elif fall is None:
+    elif fall is not None:
+        rest = (f"; the objective still fell by {100 * fall:.2g}% over the last {window} "
+                f"iterations, where converged means below {100 * rtol:.2g}%")
+    elif n is not None and n <= window:
         rest = (f"; too few iterations for the stall test (a fall below {100 * rtol:.2g}% of "
                 f"the objective over {window} iterations)")
     else:
-        rest = (f"; the objective still fell by {100 * fall:.2g}% over the last {window} "
-                f"iterations, where converged means below {100 * rtol:.2g}%")
-    return f"not converged: stopped {where} after {n} iterations{rest}"
+        rest = "; the stall test's result is not recorded"
+    return f"{head}{after}{rest}"
 
 
 def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: float = 1e-5,
