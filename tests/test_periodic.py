@@ -201,8 +201,17 @@ def test_out_of_distribution_reference_holds_out_the_loop_rows_with_their_record
     tof = np.asarray(walk_model.data.trial_of_frame)
     o, loops = walk_model.spec.order, walk_model.data.loops
     n_rows = P.dyn.A.shape[0]
-    assert n_rows == tof.size - o * len(walk_model.data.lengths) + 2 * int(np.sum(loops >= 0))
+    # the rows' recordings built by hand: each recording's frames after its first o, then o
+    # loop rows for each looped recording, in recording order
+    first = np.zeros(tof.size, bool)
+    for s in np.flatnonzero(np.r_[True, tof[1:] != tof[:-1]]):
+        first[s:s + o] = True
+    groups = np.r_[tof[~first], np.repeat(np.flatnonzero(loops >= 0), o)]
+    assert groups.size == n_rows
+    z2, nlpd = held_out_stats(P.dyn, groups)
     ref = training_reference(P, tof, o, loops=loops)
+    np.testing.assert_array_equal(ref["dynamics"]["values"], z2)
+    np.testing.assert_array_equal(ref["dynamics_density"]["values"], nlpd)
     for name in ("dynamics", "dynamics_density"):
         assert ref[name]["values"].shape == (n_rows,)
         assert np.all(np.isfinite(ref[name]["values"]))
@@ -213,3 +222,7 @@ def test_out_of_distribution_reference_holds_out_the_loop_rows_with_their_record
         training_reference(P, tof, o)
     with pytest.raises(bm.BayesmotionError, match="one recording per training row"):
         held_out_stats(P.dyn, tof[:n_rows - 1])
+    with pytest.raises(bm.BayesmotionError, match="loops must hold one frame per trial"):
+        training_reference(P, tof, o, loops=loops[:-1])
+    with pytest.raises(bm.BayesmotionError, match="each recording's frames together"):
+        training_reference(P, np.r_[tof[1:], tof[:1]], o, loops=loops)

@@ -147,7 +147,12 @@ def training_reference(P: Predictor, trial_of_frame: np.ndarray, order: int,
         dyn_layer = P.dyn
     bottom = [held_out_stats(fit, tof) for fit in layers]
     starts = np.flatnonzero(np.r_[True, tof[1:] != tof[:-1]])
-    index = DynamicsIndex(np.diff(np.r_[starts, tof.size]), order, loops)
+    if np.unique(tof[starts]).size != starts.size:
+        raise BayesmotionError("trial_of_frame must hold each recording's frames together")
+    try:
+        index = DynamicsIndex(np.diff(np.r_[starts, tof.size]), order, loops)
+    except ValueError as e:  # loops of the wrong shape or out of range, too short recordings
+        raise BayesmotionError(f"training_reference: {e}") from None
     dyn = held_out_stats(dyn_layer, tof[index.out])
     return {"bottom": _summary(np.mean([b[0] for b in bottom], axis=0)),
             "bottom_density": _summary(np.mean([b[1] for b in bottom], axis=0)),
