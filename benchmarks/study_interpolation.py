@@ -4,7 +4,7 @@
                                              [--max-iter N] [--optimize-style]
                                              [--init shared|phase] [--rest-frames]
                                              [--periodic] [--lookahead W]
-                                             [--synthesis-setup] [--table]
+                                             [--synthesis-setup] [--rescore] [--table]
 
 For each walk content and each emotion, four methods generate motion along the line from the
 neutral clip to the emotional one, ``s ∈ {0, .25, .5, .75, 1}``, and extrapolate to ``s = 1.25``:
