@@ -1,4 +1,4 @@
-"""Motion data: skeletons, motions, trials, datasets, BVH I/O, forward kinematics."""
+"""Motion data: skeletons, motions, trials, datasets, BVH I/O, forward and inverse kinematics."""
 
 from bayesmotion.data.bvh import parse_bvh, read_bvh, write_bvh
 from bayesmotion.data.fk import forward_kinematics

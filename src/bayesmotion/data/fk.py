@@ -204,16 +204,11 @@ def euler_matrices(order: str, degrees: np.ndarray) -> np.ndarray:
     return R
 
 
-def numpy_positions(skeleton: Skeleton, values: np.ndarray, with_end_sites=False) -> np.ndarray:
-    """FK in NumPy (float64, vectorised over frames): no compilation, for data handling.
-
-    The same equations as the JAX version (tests check they agree); use the JAX one inside
-    jitted or differentiated code.
-    """
-    values = np.asarray(values, dtype=np.float64)
-    lead = values.shape[:-1]
-    v = values.reshape(-1, values.shape[-1])
-    parents, rot_idx, orders, pos_idx, end_joints = layout_key(skeleton)
+def numpy_transforms(skeleton: Skeleton, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World rotations (T, J, 3, 3) and positions (T, J, 3) of (T, C) channel values, NumPy
+    float64 (the equations of the module docstring; no end sites)."""
+    v = np.asarray(values, dtype=np.float64)
+    parents, rot_idx, orders, pos_idx, _ = layout_key(skeleton)
     Rw, pw = [], []
     for j, parent in enumerate(parents):
         R = euler_matrices(orders[j], v[:, list(rot_idx[j][:len(orders[j])])])
@@ -227,10 +222,24 @@ def numpy_positions(skeleton: Skeleton, values: np.ndarray, with_end_sites=False
         else:
             Rw.append(Rw[parent] @ R)
             pw.append(pw[parent] + np.einsum("nij,nj->ni", Rw[parent], t))
-    if with_end_sites:
-        for j in end_joints:
-            pw.append(pw[j] + Rw[j] @ skeleton.end_sites[j])
-    return np.stack(pw, axis=-2).reshape(*lead, -1, 3)
+    return np.stack(Rw, axis=1), np.stack(pw, axis=1)
+
+
+def numpy_positions(skeleton: Skeleton, values: np.ndarray, with_end_sites=False) -> np.ndarray:
+    """FK in NumPy (float64, vectorised over frames): no compilation, for data handling.
+
+    The same equations as the JAX version (tests check they agree); use the JAX one inside
+    jitted or differentiated code.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    lead = values.shape[:-1]
+    v = values.reshape(-1, values.shape[-1])
+    Rw, pw = numpy_transforms(skeleton, v)
+    ends = layout_key(skeleton)[4]
+    if with_end_sites and len(ends):
+        tips = [pw[:, j] + Rw[:, j] @ skeleton.end_sites[j] for j in ends]
+        pw = np.concatenate([pw, np.stack(tips, axis=1).reshape(v.shape[0], -1, 3)], axis=1)
+    return pw.reshape(*lead, -1, 3)
 
 
 def _channel_tables(layout: tuple):
