@@ -78,6 +78,11 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     pinned = bm.load_rollout(tmp_path / "gen_pinned" / "happy_rollout.npz")
     plain = tiny_model.generate(emotion="happy", n_frames=12, n_samples=1).pin_feet()
     np.testing.assert_allclose(pinned.angles, plain.angles, atol=1e-6)
+    assert main(["generate", str(model), "--emotion", "happy", "--frames", "12", "--samples",
+                 "1", "--pin-legs", "--out", str(tmp_path / "gen_legs")]) == 0
+    legs = bm.load_rollout(tmp_path / "gen_legs" / "happy_rollout.npz")
+    np.testing.assert_allclose(legs.angles, tiny_model.generate(
+        emotion="happy", n_frames=12, n_samples=1).pin_feet(legs=True).angles, atol=1e-6)
     assert main(["generate", str(model), "--emotion", "happy", "--frames", "12",
                  "--lookahead", "5", "--out", str(tmp_path / "gen_guided")]) == 0
     guided = bm.load_rollout(tmp_path / "gen_guided" / "happy_rollout.npz")

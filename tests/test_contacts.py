@@ -12,11 +12,15 @@ from bayesmotion.evaluation.naturalness import NaturalnessReference, naturalness
 from bayesmotion.features.contacts import (
     SPEED_SCALE,
     binomial_smooth,
+    contact_steps,
     pin_feet,
     pin_offset,
+    plant_legs,
     root_translation_columns,
+    sliding_contacts,
     step_weights,
 )
+from bayesmotion.features.joint_map import CMU_MAP
 from bayesmotion.features.movement import leg_length
 from bayesmotion.features.pose import semantic_positions
 
@@ -104,6 +108,79 @@ def test_rollout_pin_feet_equals_the_motion_clean_up(tiny_model):
     np.testing.assert_allclose(fixed.sample_var["positions"], fixed.samples["positions"].var(0))
     np.testing.assert_array_equal(fixed.positions_var, r.positions_var)
     np.testing.assert_array_equal(fixed.Y, r.Y)
+    legs = r.pin_feet(legs=True, speed_scale=2.0)
+    for a in range(len(r.skeletons)):
+        expected = pin_feet(r.to_motion()[a], legs=True, speed_scale=2.0)
+        np.testing.assert_allclose(legs.to_motion()[a].values, expected.values, atol=1e-9)
+        np.testing.assert_allclose(legs.positions[a], expected.positions(), atol=1e-6)
+        np.testing.assert_allclose(legs.to_motion(1)[a].values,
+                                   pin_feet(r.to_motion(1)[a], legs=True,
+                                            speed_scale=2.0).values, atol=1e-9)
+
+
+def _swung_left_leg(m: Motion) -> Motion:
+    """``m`` with its left thigh swung +-3 degrees (period 2 s): the planted left foot glides
+    relative to the body, which a root correction cannot remove."""
+    v = np.array(m.values)
+    col = m.skeleton.channel_offsets[m.skeleton.index("LeftUpLeg")]
+    v[:, col] += 3.0 * np.sin(np.pi * np.arange(m.n_frames) / m.fps)
+    return m.replace(values=v)
+
+
+def test_plant_legs_holds_a_planted_foot_still_and_moves_only_the_legs(actor):
+    swung = _swung_left_leg(actor)
+    sk = swung.skeleton
+    # speed_scale so large that every contact step is held in full
+    out = swung.replace(values=plant_legs(swung.values, sk, swung.fps, speed_scale=1e9))
+    p0 = semantic_positions(swung.positions(), sk)
+    p1 = semantic_positions(out.positions(), sk)
+    L = leg_length(p0)
+    c = sliding_contacts(p0, swung.fps, L)
+    held = np.minimum(c, np.concatenate([c[:1], c[:-1]]))[:, 0]  # left foot, both ends
+    assert held.sum() > 30
+    before = np.linalg.norm(contact_steps(p0)[held, 0], axis=-1)
+    after = np.linalg.norm(contact_steps(p1)[held, 0], axis=-1)
+    assert before.max() > 1e-3 * L
+    np.testing.assert_allclose(after, 0.0, atol=1e-9 * L)
+    # heights and the foot's own orientation are kept: its contacts do not change (the right
+    # foot shuffles a step inside its contact at frames 69-75, out of its leg's reach)
+    for j in ("l_foot", "l_toe"):
+        np.testing.assert_allclose(p1[j][:, 1], p0[j][:, 1], atol=1e-9 * L)
+    np.testing.assert_allclose(p1["l_toe"] - p1["l_foot"], p0["l_toe"] - p0["l_foot"],
+                               atol=1e-9 * L)
+    # only the hips', knees' and ankles' rotation channels change; the body above stays
+    legs = [sk.index(n) for n in ("LeftUpLeg", "LeftLeg", "LeftFoot", "RightUpLeg",
+                                  "RightLeg", "RightFoot")]
+    allowed = {sk.channel_offsets[j] + k for j in legs for k in range(3)}
+    changed = np.flatnonzero(np.any(np.abs(out.values - swung.values) > 1e-9, axis=0))
+    assert set(changed) <= allowed and changed.size
+    for j in ("root", "spine", "neck", "head", "l_hand", "r_hand", "l_hip", "r_hip"):
+        np.testing.assert_allclose(p1[j], p0[j], atol=1e-9 * L)
+    # bone lengths: FK of the new channels
+    for s in "lr":
+        for a, b in ((f"{s}_hip", f"{s}_knee"), (f"{s}_knee", f"{s}_foot")):
+            np.testing.assert_allclose(np.linalg.norm(p1[a] - p1[b], axis=-1),
+                                       np.linalg.norm(p0[a] - p0[b], axis=-1), rtol=1e-9)
+
+
+def test_pin_feet_with_legs_removes_sliding_the_root_cannot(actor):
+    ref = NaturalnessReference.from_motions([actor], actor.fps)
+    swung = _swung_left_leg(actor)
+    root_only = naturalness(pin_feet(swung), ref)
+    both = naturalness(pin_feet(swung, legs=True), ref)
+    assert both["foot_sliding_ratio"] < 0.8 * root_only["foot_sliding_ratio"]
+    assert abs(both["jerk_ratio"] - root_only["jerk_ratio"]) < 0.05
+    # no foot moved: a motion whose contacts do not glide is returned unchanged
+    frozen = actor.replace(values=np.repeat(actor.values[:1], 20, axis=0))
+    np.testing.assert_array_equal(pin_feet(frozen, legs=True).values, frozen.values)
+
+
+def test_plant_legs_refuses_legs_that_are_not_chains(actor):
+    from dataclasses import replace
+
+    bad = replace(CMU_MAP, l_knee="LeftToeBase")
+    with pytest.raises(BayesmotionError, match="not a chain of parents"):
+        plant_legs(actor.values, actor.skeleton, actor.fps, bad)
 
 
 def test_bad_arguments_are_refused(actor):
@@ -133,3 +210,18 @@ def test_real_walks_keep_their_jerk_and_lose_no_contact_motion(bandai_root):
         assert abs(n["jerk_ratio"] - 1.0) < 0.03, t.name
         glide = naturalness(pin_feet(_glide(m, 0.3)), ref)
         assert glide["foot_sliding_ratio"] < 1.0, t.name
+
+
+def test_real_gestures_lose_most_sliding_with_the_legs_and_keep_their_jerk(bandai_root):
+    """Real Bandai bows and byes stand on both feet: the legs' clean-up removes most of what
+    glides (the root alone cannot: the feet do not glide together) and keeps the jerk."""
+    from bayesmotion.datasets.bandai import load_bandai
+
+    for t in load_bandai(bandai_root, content=["bow", "bye"], fps=10):
+        m = t.actors[0]
+        ref = NaturalnessReference.from_motions([m], m.fps)
+        root = naturalness(pin_feet(m), ref)
+        legs = naturalness(pin_feet(m, legs=True), ref)
+        assert legs["foot_sliding_ratio"] < 0.5, t.name
+        assert legs["foot_sliding_ratio"] < 0.6 * root["foot_sliding_ratio"], t.name
+        assert abs(legs["jerk_ratio"] - 1.0) < 0.03, t.name

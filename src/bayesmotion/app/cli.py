@@ -154,6 +154,10 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--pin-feet", action="store_true",
                    help="correct each actor's root path so planted feet do not glide "
                         "(bayesmotion.features.contacts.pin_feet)")
+    g.add_argument("--pin-legs", action="store_true",
+                   help="--pin-feet, and also hold each planted foot with its own leg (hips, "
+                        "knees and ankles turn; pin_feet(legs=True)); for standing motion such "
+                        "as gestures")
     g.add_argument("--out", required=True)
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--gif", action="store_true", help="also write an animated GIF")
@@ -344,8 +348,8 @@ def _cmd_generate(a):
     r = m.generate(emotion=emotion, couple=a.couple, n_frames=a.frames,
                    n_samples=a.samples, seed=a.seed, sample_memory=a.sample_memory,
                    lookahead=a.lookahead)
-    if a.pin_feet:
-        r = r.pin_feet()
+    if a.pin_feet or a.pin_legs:
+        r = r.pin_feet(legs=a.pin_legs)
     tag = a.emotion.replace(",", "_")
     paths = r.write_bvh(out, prefix=tag)
     for k in range(a.samples):

@@ -27,9 +27,15 @@ import numpy as np
 
 from bayesmotion._version import __version__
 from bayesmotion.data.bvh import format_bvh, parse_bvh, write_bvh
+from bayesmotion.data.fk import numpy_positions
 from bayesmotion.data.motion import Motion
 from bayesmotion.errors import BayesmotionError, BVHError, ModelFileError
-from bayesmotion.features.contacts import GROUND, pin_offset, root_translation_columns
+from bayesmotion.features.contacts import (
+    GROUND,
+    pin_offset,
+    plant_legs,
+    root_translation_columns,
+)
 from bayesmotion.model.archive import MAX_ABS, MAX_ARRAY_BYTES, open_archive, write_archive
 
 
@@ -101,24 +107,30 @@ class Rollout:
         sd = np.sqrt(var)
         return mean - z * sd, mean + z * sd
 
-    def pin_feet(self, joint_map=None, **options) -> Rollout:
+    def pin_feet(self, joint_map=None, *, legs: bool = False, **options) -> Rollout:
         """A copy whose actors' root paths are corrected so that planted feet do not glide
         (:func:`bayesmotion.features.contacts.pin_feet`), in the mean rollout and in every
         sample; the samples' spread is taken again from the corrected samples.
 
         Only each root's horizontal translation changes (``angles``' root X/Z position
-        columns and ``positions``); the predictive variances (``*_var``) are those of the
-        uncorrected rollout. ``joint_map`` and ``options`` (``contact_height``,
-        ``speed_scale``, ``smooth``) are the clean-up's.
+        columns and ``positions``), and with ``legs`` each leg's hip, knee and ankle rotations
+        too (:func:`bayesmotion.features.contacts.plant_legs`); the predictive variances
+        (``*_var``) are those of the uncorrected rollout. ``joint_map`` and ``options``
+        (``contact_height``, ``speed_scale``, ``smooth``) are the clean-up's.
         """
         cols = [root_translation_columns(sk) for sk in self.skeletons]
+        leg_options = {k: v for k, v in options.items() if k != "smooth"}
 
         def fix(angles, positions):  # (A, T, C), (A, T, J, 3) of one rollout
             angles, positions = np.array(angles, np.float64), np.array(positions, np.float64)
             for a, sk in enumerate(self.skeletons):
                 off = pin_offset(positions[a], sk, self.fps, joint_map, **options)
                 angles[a][:, cols[a]] += off[:, GROUND]
-                positions[a] += off[:, None, :]
+                if legs:
+                    angles[a] = plant_legs(angles[a], sk, self.fps, joint_map, **leg_options)
+                    positions[a] = numpy_positions(sk, angles[a])
+                else:
+                    positions[a] += off[:, None, :]
             return angles, positions
 
         angles, positions = fix(self.angles, self.positions)
