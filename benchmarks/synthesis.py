@@ -218,7 +218,8 @@ def mechanisms(data: MotionDataset, walks_model, real_speed: float, cfg: Setting
 
 
 def transition_row(model, judge: LogisticRegression, source: str, target: str, n_frames: int,
-                   length: int, window: int, seed: int, lookahead: float) -> dict:
+                   length: int, window: int, seed: int, lookahead: float,
+                   match: bool = False) -> dict:
     """One ``source`` -> ``target`` mean rollout of ``n_frames`` frames whose ``length``-frame
     smoothstep is centred in it, measured (module docstring): the judge's probabilities in
     sliding windows, the limb motion after the switch over before it, the body-frame jerk
@@ -226,8 +227,8 @@ def transition_row(model, judge: LogisticRegression, source: str, target: str, n
     jerkier of the two), and in the interaction latents the largest step in the switch window
     over the median step elsewhere and the largest distance there from the training latents."""
     start = n_frames // 2 - length // 2
-    roll = model.generate(emotion=Transition(source, target, start, length), n_frames=n_frames,
-                          seed=seed, lookahead=lookahead)
+    roll = model.generate(emotion=Transition(source, target, start, length, match),
+                          n_frames=n_frames, seed=seed, lookahead=lookahead)
     m = roll.to_motion()[0]
     classes = list(judge.classes)
     centres, p_src, p_tgt = [], [], []
@@ -259,7 +260,7 @@ def transition_row(model, judge: LogisticRegression, source: str, target: str, n
             "jerk_switch_over_jerkier_side": float(np.sqrt(at / max(before, after))),
             "latent_step_switch_max_over_median": float(step[moving].max()
                                                         / np.median(step[~moving])),
-            "latent_distance_switch_max": float(near.max())}
+            "latent_distance_switch_max": float(near.max()), "start": roll.start}
 
 
 def transitions(model, judge: LogisticRegression, cfg: Settings) -> dict:

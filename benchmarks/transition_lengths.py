@@ -7,9 +7,13 @@ shared Bandai walks, periodic, ``synthesis.Settings``) generates ``transition_fr
 mean rollouts whose emotion changes from neutral to each other emotion along a smoothstep
 (:class:`bayesmotion.Transition`) of each length in ``LENGTHS`` frames (0: a switch at one
 frame), with the look-ahead of ``synthesis.Settings.lookahead`` and, at the synthesis
-benchmark's length, without it. Each rollout is measured by :func:`synthesis.transition_row`:
-the judge's (the affective-feature classifier trained on every real clip of the synthesis
-benchmark's groups, as there) probability of the target over sliding windows; the body-frame
+benchmark's length, without it; and matched transitions
+(``Transition(..., match=True)``, :mod:`bayesmotion.model.transition`: the target continues
+from its training frame that best matches the source's last poses, the difference blended
+out) over each blend length in ``MATCHED_LENGTHS``, with the look-ahead. Each rollout is
+measured by :func:`synthesis.transition_row`: the judge's (the affective-feature classifier
+trained on every real clip of the synthesis benchmark's groups, as there) probability of the
+target over sliding windows; the body-frame
 jerk in the switch window over the jerk before the switch, after it and the jerkier of the two
 (a faster emotion jerks more, so the jerkier side is the fair reference: 1 or less means no
 jump); the largest latent step in the switch window over the median step elsewhere, and how
@@ -49,19 +53,21 @@ from bayesmotion.features import clip_features  # noqa: E402
 
 NAME = "transition_lengths"
 LENGTHS = (0, 10, 20, 40, 80)  # smoothstep lengths in frames (10 fps)
+MATCHED_LENGTHS = (0, 5, 10, 20)  # blend lengths of the matched transitions
 TARGETS = {"jerk_switch_over_jerkier_side_max": 1.0}
 KEYS = ("p_target_last_window", "jerk_switch_over_jerkier_side", "jerk_switch_over_elsewhere",
         "latent_step_switch_max_over_median", "latent_distance_switch_max")
 
 
-def rows(model, judge: LogisticRegression, cfg, length: int, lookahead: float) -> dict:
+def rows(model, judge: LogisticRegression, cfg, length: int, lookahead: float,
+         match: bool = False) -> dict:
     """emotion -> transition_row (or the generator's error) at one length and look-ahead."""
     levels = list(model.levels["emotion"])
     out = {}
     for e in levels[1:]:
         try:
             out[e] = synthesis.transition_row(model, judge, levels[0], e, cfg.transition_frames,
-                                              length, cfg.window, cfg.seed, lookahead)
+                                              length, cfg.window, cfg.seed, lookahead, match)
         except BayesmotionError as err:
             out[e] = {"error": str(err)}
     return out
@@ -91,6 +97,8 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
                          "periodic": "walks" in cfg.periodic, "lookahead": cfg.lookahead,
                          "transition_frames": cfg.transition_frames, "window": cfg.window,
                          "lengths": list(lengths),
+                         "matched_lengths": list((0, cfg.transition_length) if quick
+                                                 else MATCHED_LENGTHS),
                          "synthesis_length": cfg.transition_length},
             "targets": TARGETS}
     if not bandai_present(root):
@@ -103,13 +111,15 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
         warnings.simplefilter("ignore", RuntimeWarning)
         _, model, fit_s = synthesis.fit_group("walks", data, cfg.groups["walks"], cfg)
     runs = []
-    for lookahead, length in ([(cfg.lookahead, n) for n in lengths]
-                              + [(0.0, cfg.transition_length)]):
-        block = rows(model, judge, cfg, length, lookahead)
-        runs.append({"length": length, "lookahead": lookahead, "emotions": block,
-                     "summary": summary(block)})
-        print(f"[{NAME}] length {length}, look-ahead {lookahead}: done", file=sys.stderr,
-              flush=True)
+    matched = (0, cfg.transition_length) if quick else MATCHED_LENGTHS
+    for lookahead, length, match in ([(cfg.lookahead, n, False) for n in lengths]
+                                     + [(0.0, cfg.transition_length, False)]
+                                     + [(cfg.lookahead, n, True) for n in matched]):
+        block = rows(model, judge, cfg, length, lookahead, match)
+        runs.append({"length": length, "lookahead": lookahead, "matched": match,
+                     "emotions": block, "summary": summary(block)})
+        print(f"[{NAME}] length {length}, look-ahead {lookahead}, matched {match}: done",
+              file=sys.stderr, flush=True)
     limit = TARGETS["jerk_switch_over_jerkier_side_max"]
     head = []
     for r in runs:
@@ -119,8 +129,10 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
         per = s["jerk_switch_over_jerkier_side"]["per_emotion"]
         p = s["p_target_last_window"]["per_emotion"]
         worst = s["jerk_switch_over_jerkier_side"]["worst"]
+        what = (f"matched transition, {r['length']}-frame blend" if r["matched"]
+                else f"{r['length']}-frame transition")
         head.append(headline(
-            f"walks, {r['length']}-frame transition, look-ahead {r['lookahead']:g}: jerk in the "
+            f"walks, {what}, look-ahead {r['lookahead']:g}: jerk in the "
             f"switch window / the jerkier side's (worst emotion)", worst, "", f"<= {limit:g}",
             worst <= limit,
             "; ".join(f"{e} {per[e]:.2f} (p(target) last window {p[e]:.2f})" for e in per)))

@@ -118,6 +118,9 @@ def test_transition_row_measures_the_rollout_it_names(tiny_model):
         min(row["jerk_switch_over_before"], row["jerk_switch_over_after"]))
     assert row["latent_step_switch_max_over_median"] > 0
     assert 0 <= row["latent_distance_switch_max"] < np.inf
+    matched = synthesis.transition_row(tiny_model, judge, "happy", "sad", T, L, W, 3, 0.0, True)
+    assert "the target continues training trial" in matched["start"]
+    assert "continues" not in row["start"]
     block = {"sad": row, "angry": {**row, "p_target_last_window": 0.1,
                                    "jerk_switch_over_jerkier_side": 9.0},
              "happy": {"error": "refused"}}

@@ -14,9 +14,10 @@ from bayesmotion.data.skeleton import Skeleton
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.archive import save_model
 from bayesmotion.model.data import ModelData, encode_trial
-from bayesmotion.model.generate import SAMPLE_MEMORY, generate
+from bayesmotion.model.generate import SAMPLE_MEMORY, Transition, generate
 from bayesmotion.model.logpost import LogPosterior, ar_of, constrained, trial_styles
 from bayesmotion.model.predict import condition
+from bayesmotion.model.transition import matched_transition
 
 if TYPE_CHECKING:
     from bayesmotion.model.spec import HGPDM
@@ -202,6 +203,20 @@ class FittedHGPDM:
         Returns:
             a :class:`bayesmotion.model.rollout.Rollout`.
         """
+        values = {"emotion": emotion, "couple": couple, **styles}
+        matched = [f for f, v in values.items() if isinstance(v, Transition) and v.match]
+        if matched:
+            if len(matched) > 1:
+                raise BayesmotionError(f"at most one matched Transition per rollout, got "
+                                       f"{len(matched)} ({', '.join(matched)})")
+            f = matched[0]
+            if f not in self.levels:
+                raise BayesmotionError(f"model has no style factor {f!r}")
+            others = {k: v for k, v in values.items()
+                      if k != f and k in self.levels and v is not None}
+            return matched_transition(self, f, values[f], n_frames, n_samples, start, seed,
+                                      lookahead=lookahead, sample_memory=sample_memory,
+                                      **others)
         return generate(self, emotion, couple, n_frames, n_samples, start, seed,
                         sample_memory=sample_memory, lookahead=lookahead, **styles)
 
