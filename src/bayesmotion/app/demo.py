@@ -39,13 +39,22 @@ SETTINGS = {
     # directions need thousands of steps (benchmarks/results/posterior_convergence.json)
     "quick": {"fps": 10.0, "max_iter": 150, "n_steps": 200, "fix_styles": True, "n_draws": 3,
               "n_samples": 3, "infer_steps": 150, "gif_stride": 2},
-    # full: sized for the 15-minute target on 2 cores; the whole posterior, style vectors
-    # included, whose 600 steps are far short of convergence (R-hat in the report). At 20 fps
+    # full: the whole posterior, style vectors included, whose 600 steps are far short of
+    # convergence (R-hat in the report), and then the hyperparameters' conditional given the
+    # MAP style vectors run to convergence (conditional_steps; max R-hat <= 1.01 needs about
+    # 127 tau steps after the burn-in, tau about 3 steps: docs/sampling.md). At 20 fps
     # (N = 680 training frames) one emcee step of the dense posterior costs about 8x more (N^3),
     # which does not fit.
     "full": {"fps": 10.0, "max_iter": 1000, "n_steps": 600, "fix_styles": False, "n_draws": 8,
-             "n_samples": 8, "infer_steps": 400, "gif_stride": 1},
+             "n_samples": 8, "infer_steps": 400, "gif_stride": 1, "conditional_steps": 600},
 }
+
+CONDITIONAL_NOTE = (
+    "The same model's hyperparameters ({ndim} coordinates) with the training style vectors held "
+    "at the MAP: p(hyperparameters | styles, latents), a conditional of the posterior, not the "
+    "posterior. It is run to convergence here ({steps} steps); the whole posterior above needs "
+    "about 6,000 steps at this size (benchmarks/results/posterior_convergence.json). The "
+    "generated handshakes below use the whole-posterior chain above.")
 
 POSTERIOR_NOTE = {
     True: ("This quick run samples the hyperparameters (gamma, beta, alpha, the AR "
@@ -134,6 +143,20 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
                             "max_tau": float(np.max(post.info["tau"])),
                             "warning": post.info.get("warning")}
     plot_posterior(post, path=out / "trace.png", dpi=70)
+    conditional = None
+    if cfg.get("conditional_steps"):
+        t0 = time.perf_counter()
+        conditional = sample_posterior(model, n_steps=cfg["conditional_steps"], seed=seed,
+                                       fix_styles=True)
+        summary["posterior_conditional"] = {
+            **convergence(conditional), "seconds": time.perf_counter() - t0,
+            "style_vectors": "held at the MAP", "n_coordinates": conditional.target.ndim,
+            "n_walkers": conditional.info["n_walkers"],
+            "n_steps": conditional.info["n_steps"], "burn": conditional.info["burn"],
+            "thin": conditional.info["thin"],
+            "max_tau": float(np.max(conditional.info["tau"])),
+            "warning": conditional.info.get("warning")}
+        plot_posterior(conditional, path=out / "trace_conditional.png", dpi=70)
     stage("posterior")
     # 3. posterior-predictive handshakes
     T = ds[0].n_frames
@@ -226,6 +249,9 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     summary["stage_seconds"] = stages
     summary["seconds_total"] = time.perf_counter() - t_all
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, default=float))
+    conditional_text = (CONDITIONAL_NOTE.format(ndim=conditional.target.ndim,
+                                                steps=cfg["conditional_steps"])
+                        if conditional is not None else "")
     sections = [
         ("MAP fit", [out / "fit_trace.png", f"<p>{d['seconds']:.1f} s, "
                      f"{html.escape(convergence_note(d))}."
@@ -240,6 +266,11 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
           f"</p>", out / "trace.png", table(
             [[k, f"{v:.3g}" if isinstance(v, float) else v]
              for k, v in summary["posterior"].items()], ["quantity", "value"])]),
+        *([("Posterior (emcee): hyperparameters given the style vectors, to convergence",
+            [f"<p>{html.escape(conditional_text)}</p>", out / "trace_conditional.png", table(
+                [[k, f"{v:.3g}" if isinstance(v, float) else v]
+                 for k, v in summary["posterior_conditional"].items()],
+                ["quantity", "value"])])] if conditional is not None else []),
         ("Generated handshakes", [viewer_fragment(clips, note=(
             "Emotions: posterior-predictive rollouts (faint skeletons: sampled rollouts; discs: "
             "mean +- 2 sd of each joint's position, the GP variance plus the spread across "
