@@ -59,6 +59,9 @@ def test_matched_rollout_is_the_source_then_the_matched_target_blended(tiny_mode
     assert f"training trial {r}" in cut.start and f"after its frame {j}" in cut.start
     np.testing.assert_array_equal(cut.styles["emotion"][:s], [[1.0, 0.0]] * s)
     np.testing.assert_array_equal(cut.styles["emotion"][s:], [[0.0, 1.0]] * (n - s))
+    assert not cut.extrapolated
+    beyond = m.generate(emotion=bm.Transition([1.3, -0.3], "sad", s, 0, match=True), n_frames=n)
+    assert beyond.extrapolated  # a source off the simplex is said so
     # with a blend the offset decays to nothing over its length, and the switch is smoother
     L = 4
     blend = m.generate(emotion=bm.Transition("happy", "sad", s, L, match=True), n_frames=n)

@@ -39,6 +39,7 @@ from bayesmotion.model.generate import (
     decode_mean,
     decode_samples,
     generate,
+    is_extrapolated,
     resolve_style,
     start_trial,
 )
@@ -174,6 +175,7 @@ def matched_transition(model, factor: str, t: Transition, n_frames: int, n_sampl
         sample_var = {k: v.var(0) for k, v in samples.items()}
     desc = (f"{src.start}; from frame {s} the target continues training trial {r} "
             f"({model.trials[r].name}) after its frame {j} (pose distance {np.sqrt(dist):.3g})")
-    return Rollout(fps=model.fps, styles=coords, extrapolated=False, start=desc,
+    return Rollout(fps=model.fps, styles=coords,
+                   extrapolated=any(is_extrapolated(c) for c in coords.values()), start=desc,
                    n_observed=o, I=I, I_var=I_var, skeletons=mean.pop("skeletons"),
                    samples=samples, sample_var=sample_var, **mean)
