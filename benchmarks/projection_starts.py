@@ -18,6 +18,11 @@ the unjittered one (what ``level_starts`` runs) and without it (accuracy, ECE, l
 coverage, wrong answers with P >= 0.99). ``--quick``: two walk contents at 7.5 fps, 20
 frames, 3 starts.
 
+Besides, each fold is inferred with one start per level each way, timed alone: the nearest
+frames' latents (the default) and the staged start (``staged_start=True``:
+:func:`bayesmotion.emotion.projection.project_levels`); their answers, seconds, and the best of
+the two by objective.
+
 Current result (``results/projection_starts.json``): see ``["headline"]``.
 """
 
@@ -88,12 +93,22 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
                   latent_uncertainty=False, effective_frames=np.inf)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OutOfDistributionWarning)
-            lap = infer_emotion(fold, held, level_starts=cfg["starts"],
-                                start_jitter=JITTER, **kw).info["level_laplace"]
-        rows.append({"trial": held.name, "true": held.labels["emotion"],
-                     "seconds": time.perf_counter() - t0,
+            lap = infer_emotion(fold, held, level_starts=cfg["starts"], start_jitter=JITTER,
+                                staged_start=False, **kw).info["level_laplace"]
+            seconds = time.perf_counter() - t0
+            # one start per level, each way, timed alone: the nearest frames' latents (the
+            # default) and the staged start
+            single = {}
+            for name, staged in (("nearest", False), ("staged", True)):
+                t1 = time.perf_counter()
+                info = infer_emotion(fold, held, staged_start=staged, **kw).info
+                single[name] = {"seconds": time.perf_counter() - t1,
+                                "log_evidence": info["level_log_evidence"],
+                                "objectives": info["level_objectives"]}
+        rows.append({"trial": held.name, "true": held.labels["emotion"], "seconds": seconds,
                      "start_log_evidence": [d["start_log_evidence"] for d in lap],
-                     "start_objectives": [d["start_objectives"] for d in lap]})
+                     "start_objectives": [d["start_objectives"] for d in lap],
+                     "single_start": single})
     return {**base, **summarize(rows, levels, cfg["starts"])}
 
 
@@ -151,6 +166,9 @@ def summarize(rows: list, levels: list, S: int) -> dict:
            "label_changes": flips,
            "seconds_per_clip": float(np.median([r["seconds"] for r in rows]))}
 
+    if all("single_start" in r for r in rows):
+        out["single_start"] = _single_starts(rows, truth)
+
     def pct(b, key="accuracy"):
         return f"{100 * b[key]['mean']:.1f}% ({100 * b[key]['min']:.1f}-" \
                f"{100 * b[key]['max']:.1f})"
@@ -181,4 +199,40 @@ def summarize(rows: list, levels: list, S: int) -> dict:
         headline(f"  seconds per clip with {S} starts per level", out["seconds_per_clip"], "s",
                  "", None, "median, inference only"),
     ]
+    if "single_start" in out:
+        one = out["single_start"]
+        for name, what in (("nearest", "the nearest frames' latents (the default)"),
+                           ("staged", "the staged start (staged_start=True)")):
+            r = one[name]
+            out["headline"].append(headline(
+                f"  one start per level, {what}: plain-evidence accuracy",
+                100 * r["accuracy"], "%", "", None,
+                f"ECE {r['ece']:.3f}; wrong with P >= 0.99: {100 * r['confident_wrong']:.1f}%; "
+                f"{r['seconds']:.1f} s per clip (median, inference alone)"))
+        b2 = one["best_of_both"]
+        out["headline"].append(headline(
+            "  best of the two single starts per level (by objective)", 100 * b2["accuracy"],
+            "%", "", None, f"ECE {b2['ece']:.3f}; the staged start's objective is the lower "
+            f"in {100 * one['staged_lower_objective']:.0f}% of fold-levels"))
+    return out
+
+
+def _single_starts(rows: list, truth: np.ndarray) -> dict:
+    """Each single start's answers and median seconds, and the best of the two per level by
+    objective, from the folds' ``single_start`` records."""
+    out = {}
+    for name in ("nearest", "staged"):
+        ev = np.array([r["single_start"][name]["log_evidence"] for r in rows])
+        ans = _answers(ev, truth)
+        out[name] = {**{k: v for k, v in ans.items() if k != "probabilities"},
+                     "seconds": float(np.median([r["single_start"][name]["seconds"]
+                                                 for r in rows]))}
+    ev = np.stack([[r["single_start"][n]["log_evidence"] for r in rows]
+                   for n in ("nearest", "staged")], -1)  # (folds, K, 2)
+    obj = np.stack([[r["single_start"][n]["objectives"] for r in rows]
+                    for n in ("nearest", "staged")], -1)
+    best = np.take_along_axis(ev, np.argmin(obj, 2)[..., None], 2)[..., 0]
+    ans = _answers(best, truth)
+    out["best_of_both"] = {k: v for k, v in ans.items() if k != "probabilities"}
+    out["staged_lower_objective"] = float(np.mean(obj[..., 1] < obj[..., 0]))
     return out

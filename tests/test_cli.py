@@ -122,6 +122,11 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     assert out["start_jitter"] == 0.0  # the default
     assert main(["infer", str(model), *clips, "--json", "--start-jitter", "0.02"]) == 0
     assert json.loads(capsys.readouterr().out)["start_jitter"] == 0.02
+    assert out["staged_start"] is False  # the default
+    assert main(["infer", str(model), *clips, "--json", "--staged-start"]) == 0
+    staged = json.loads(capsys.readouterr().out)
+    assert staged["staged_start"] is True
+    assert staged["map_objective"] != out["map_objective"]  # another start, another path
     assert "--start-jitter" in one_line_error(
         capsys, ["infer", str(model), *clips, "--start-jitter", "-1"])
     assert "--level-starts > 1 needs --start-jitter > 0" in one_line_error(

@@ -253,3 +253,78 @@ def test_vertices_answer_does_not_depend_on_batching(tiny_model, tiny_data, monk
                                atol=0.01)
     assert out[True].label == out[False].label
     assert len(a["level_laplace"][0]["start_objectives"]) == 2
+
+
+def test_density_parts_sum_to_the_clip_density(tiny_model, tiny_data):
+    """The parts the staged start minimises: bottom + upper is the whole -log p; the bottom part
+    depends on X* alone, and the upper part with a level's seen cells equals it with every
+    cell (the restriction is exact), so the staged stages see the model's density."""
+    params, args, statics = _setup(tiny_model, tiny_data[0], 9, 16)
+    parts = {q: float(project._neg_part(args[0], params, *args[1:], **statics, part=q))
+             for q in project.PARTS}
+    assert parts["all"] == pytest.approx(parts["bottom"] + parts["upper"], rel=1e-12)
+    g = jax.grad(lambda p: project._neg_part(args[0], p, *args[1:], **statics,
+                                             part="bottom"))(params)
+    assert np.any(np.asarray(g["X"]) != 0)
+    assert not np.any(np.asarray(g["I"])) and not np.any(np.asarray(g["style:emotion"]))
+    P = args[0]
+    for k in range(P.level_vectors["emotion"].shape[0]):
+        fixed = {**args[3], "emotion": jnp.asarray(P.level_vectors["emotion"][k])}
+        held = {key: v for key, v in params.items() if key != "style:emotion"}
+        Pk = project.seen_predictor(P, fixed, statics["int_factors"], statics["dyn_factors"])
+        full = project._neg_part(P, held, args[1], args[2], fixed, {}, **statics, part="upper")
+        seen = project._neg_part(Pk, held, args[1], args[2], fixed, {}, **statics,
+                                 part="upper")
+        assert float(seen) == pytest.approx(float(full), rel=1e-10)
+
+
+def test_minimizing_some_entries_holds_the_others(tiny_model, tiny_data):
+    """minimize_scaled(keys=..., part=...): only the named entries move (the others are returned
+    bit for bit), and the part's objective never rises; a part name it does not know is
+    refused."""
+    params, args, statics = _setup(tiny_model, tiny_data[0], 9, 16)
+
+    def part(p, q):
+        return float(project._neg_part(args[0], p, *args[1:], **statics, part=q))
+
+    for keys, q in ((("X",), "bottom"), (("I", "style:emotion"), "upper")):
+        p, res = project.minimize_scaled(params, args, statics, 40, keys=keys, part=q)
+        for key in params:
+            if key not in keys:
+                np.testing.assert_array_equal(np.asarray(p[key]), np.asarray(params[key]))
+        assert res.fun == pytest.approx(part(p, q), rel=1e-12)
+        assert res.fun <= part(params, q)
+    with pytest.raises(ValueError, match="part"):
+        project.minimize_scaled(params, args, statics, 5, part="middle")
+
+
+def test_staged_start_never_worsens_its_stages(tiny_model, tiny_data):
+    """project_levels(staged=True): the bottom stage lowers the bottom term from the nearest
+    frames' X* (shared by the levels), each level's joint projection ends at or below its
+    staged start, and the evidence is computed at the returned optimum."""
+    from bayesmotion.emotion.projection import project_levels, staged_bottom, staged_upper
+
+    trial = tiny_data[0]
+    params, args, statics = _setup(tiny_model, trial, 9, 16)
+    Ys = [np.asarray(Y)[:9] for Y in clip_poses(tiny_model, trial)]
+    P = args[0]
+    fixed0 = {**args[3], "emotion": jnp.asarray(P.level_vectors["emotion"][0])}
+    args0 = (P, args[1], args[2], fixed0, {})
+    held = {k: v for k, v in params.items() if k != "style:emotion"}
+
+    def part(p, q, a=args0):
+        return float(project._neg_part(a[0], p, *a[1:], **statics, part=q))
+
+    X = staged_bottom(held, args0, statics, 200)
+    assert part({**held, "X": X}, "bottom") < part(held, "bottom")
+    out = project_levels(tiny_model, P, Ys, 16, 9, args, statics, 200, ["emotion"],
+                         {"emotion": np.ones(P.level_vectors["emotion"].shape[0])},
+                         staged=True)
+    for k, (p, res, log_ev, info) in enumerate(out):
+        fixed = {**args[3], "emotion": jnp.asarray(P.level_vectors["emotion"][k])}
+        Pk = project.seen_predictor(P, fixed, statics["int_factors"], statics["dyn_factors"])
+        a_k = (Pk, args[1], args[2], fixed, {})
+        start = staged_upper({**held, "X": X}, a_k, statics, 200)
+        assert res.fun <= part(start, "all", a_k) + 1e-9
+        assert res.fun == pytest.approx(part(p, "all", a_k), rel=1e-12)
+        assert np.isfinite(log_ev) and info["start_objectives"] == [res.fun]

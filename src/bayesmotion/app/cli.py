@@ -179,15 +179,19 @@ def _parser() -> argparse.ArgumentParser:
                         "'levels': that start and one from each emotion level's frames, the "
                         "best optimum kept")
     i.add_argument("--level-starts", type=int, default=1, metavar="K",
-                   help="with 'vertices': projections per emotion level, from the "
-                        "nearest-frame start and K - 1 copies of it jittered by "
+                   help="with 'vertices': projections per emotion level, from the level's "
+                        "start and K - 1 copies of it jittered by "
                         "--start-jitter, the best kept (default 1; each start adds a "
                         "projection per level)")
     i.add_argument("--start-jitter", type=float, default=START_JITTER, metavar="SD",
                    help=f"with 'vertices': sd of the jitter of the level projections' "
                         f"jittered starts in latent units (default {START_JITTER:g}: the "
-                        f"nearest training frames' latents exactly; with one start per level, "
+                        f"level's start itself; with one start per level, "
                         f"SD > 0 jitters it; --level-starts > 1 needs SD > 0, e.g. 0.02)")
+    i.add_argument("--staged-start", action="store_true",
+                   help="with 'vertices': start each level's projection in two stages (X* by "
+                        "the bottom layer alone, then I* with X* held) instead of at the "
+                        "nearest training frames' latents")
     i.add_argument("--workers", type=int, default=2,
                    help="with a folder: processes of the local Dask cluster (default 2)")
     i.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -214,6 +218,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="projections per emotion level of every inference (see 'infer')")
     e.add_argument("--start-jitter", type=float, default=START_JITTER, metavar="SD",
                    help="jitter of every inference's level projection starts (see 'infer')")
+    e.add_argument("--staged-start", action="store_true",
+                   help="every inference's level projections start in two stages (see "
+                        "'infer')")
     e.add_argument("--json", default=None, help="write the result to this JSON file")
     v = add("view", "an interactive 3-D viewer page of motion files")
     v.add_argument("files", nargs="+",
@@ -390,7 +397,7 @@ def _cmd_infer(a):
         ep = infer_emotion(m, a.clips if len(a.clips) > 1 else a.clips[0], couple=a.couple,
                            seed=a.seed, likelihood_power=a.likelihood_power,
                            emotion_starts=a.emotion_starts, level_starts=a.level_starts,
-                           start_jitter=a.start_jitter)
+                           start_jitter=a.start_jitter, staged_start=a.staged_start)
     for w in caught:  # the flag is part of the answer: one line on stderr, and in the JSON
         if issubclass(w.category, OutOfDistributionWarning):
             print(f"warning: {w.message}", file=sys.stderr)
@@ -406,6 +413,7 @@ def _cmd_infer(a):
                           "emotion_starts": ep.info["emotion_starts"],
                           "level_starts": ep.info["level_starts"],
                           "start_jitter": ep.info["start_jitter"],
+                          "staged_start": ep.info["staged_start"],
                           "map_objective": ep.info["map_objective"],
                           "out_of_distribution": ep.out_of_distribution,
                           "ood_score": ep.info["ood"]["score"],
@@ -425,7 +433,7 @@ def _infer_folder(a):
     rows = infer_many(a.model, folder, table, workers=a.workers, scheduler=a.scheduler,
                       seed=a.seed, couple=a.couple, likelihood_power=a.likelihood_power,
                       emotion_starts=a.emotion_starts, level_starts=a.level_starts,
-                      start_jitter=a.start_jitter)
+                      start_jitter=a.start_jitter, staged_start=a.staged_start)
     errors = [r for r in rows if r["error"]]
     flagged = sum(str(r["out_of_distribution"]) == "True" for r in rows)
     print(f"wrote {table}: {len(rows)} clips, {len(errors)} failed, {flagged} out of "
@@ -487,7 +495,8 @@ def _cmd_evaluate(a):
     res = leave_one_out(ds, m, refit_iter=a.refit_iter, calibrate=a.calibrate,
                         infer_kwargs={"emotion_starts": a.emotion_starts,
                                       "level_starts": a.level_starts,
-                                      "start_jitter": a.start_jitter})
+                                      "start_jitter": a.start_jitter,
+                                      "staged_start": a.staged_start})
     print(format_confusion(res))
     hpd = lambda r: "" if r.get("hpd_coverage") is None else \
         f"highest-density region {r['hpd_coverage']:.2f}, "

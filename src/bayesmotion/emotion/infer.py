@@ -9,13 +9,15 @@ passes on are read in one place.
 2. Projection: the latents X*, I* and the clip's style vectors are found jointly by MAP
    (L-BFGS) of the clip's predictive log-density (bayesmotion.emotion.density) with the model
    fixed. By default (``emotion_starts="vertices"``) one projection per emotion level with the
-   emotion held at it, from the latents of the nearest frames of that level's training trials;
-   the level is chosen by its Laplace evidence (bayesmotion.emotion.projection), then its latents
-   and the
-   free emotion are refined together. With "nearest", one start from the latents of the nearest
-   training frames and the style of most of them; "levels" adds one start per emotion level
-   and keeps the best optimum. When the couple is inferred: one start per couple level, the
-   best optimum kept. L-BFGS runs in coordinates scaled by the exact Hessian diagonal.
+   emotion held at it, from the latents of the nearest frames of that level's training trials
+   (``staged_start=True``: X* by the bottom layer alone, shared by the levels, then the
+   level's I* with X* held); the level is chosen by its Laplace evidence
+   (bayesmotion.emotion.projection), then its latents and the free emotion are refined
+   together. With "nearest", one start from the latents of
+   the nearest training frames and the style of most of them; "levels" adds one start per
+   emotion level and keeps the best optimum. When the couple is inferred: one start per couple
+   level, the best optimum kept. L-BFGS runs in coordinates scaled by the exact Hessian
+   diagonal.
    Latent uncertainty: a diagonal Laplace approximation (exact diag H, coloured HVPs).
 3. Style posterior: an ensemble sampler with emcee's differential-evolution move
    (bayesmotion.inference.ensemble, one compiled program; or emcee itself) samples the clip's
@@ -172,7 +174,8 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                   likelihood_power: float = 1.0,
                   emotion_starts: str = "vertices", level_starts: int = 1,
                   start_jitter: float = START_JITTER,
-                  effective_frames: float | None = None) -> EmotionPosterior:
+                  effective_frames: float | None = None,
+                  staged_start: bool = False) -> EmotionPosterior:
     """Posterior over the emotion coordinates of an observed clip.
 
     Args:
@@ -224,7 +227,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             the recording effect and the out-of-distribution shrinkage) and the Laplace
             details per level.
         level_starts: projections per emotion level (``emotion_starts="vertices"``): one
-            from the level's nearest-frame start and ``level_starts`` - 1 from copies of it
+            from the level's start (``staged_start``) and ``level_starts`` - 1 from copies of it
             jittered by ``start_jitter`` (> 0 when ``level_starts`` > 1); each level keeps
             its best optimum (by density, never by label), and ``info``'s ``level_laplace``
             holds every start's objective and evidence. Each start adds a projection and a
@@ -232,9 +235,9 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
         start_jitter: sd of the N(0, sd^2) jitter added to every latent coordinate of each
             jittered level projection's start (``emotion_starts="vertices"``; with one start
             per level, that start), seeded by ``seed`` and the level. 0, the default, starts
-            exactly on the nearest training frames' latents.
+            exactly at the level's start.
             The clip density is multimodal in the latents: on 16 held-out Bandai walks one
-            level's evidence moved by a median 164 nats between starts
+            level's evidence moved by a median 163 nats between starts
             (``benchmarks/results/projection_starts.json``). The full walk benchmark read 13
             of 16 right from one start per level, unjittered or jittered by 0.02
             (``bandai_inference.json``, ``bandai_inference_jittered.json``), and 15 of 16 with
@@ -251,6 +254,11 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             :func:`bayesmotion.emotion.evidence.calibrate_evidence`), else infinity -- the plain
             evidence, whose probabilities are overconfident on recordings unlike the training ones
             (``info["evidence_calibrated"]`` says which).
+        staged_start: start each level's projection (``emotion_starts="vertices"``) in two
+            stages, X* by the bottom layer alone and then I* with X* held
+            (:func:`bayesmotion.emotion.projection.project_levels`), instead of at the nearest
+            training frames' latents (the default). ``benchmarks/projection_starts.py``
+            compares the two on the same folds (``single_start``).
     Returns:
         EmotionPosterior.
     """
@@ -261,6 +269,8 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
     check_projection_starts(emotion_starts, level_starts, start_jitter)
     if method not in ("ensemble", "emcee"):
         raise BayesmotionError(f"method must be 'ensemble' or 'emcee', got {method!r}")
+    if not isinstance(staged_start, bool | np.bool_):
+        raise BayesmotionError(f"staged_start must be True or False, got {staged_start!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
         raise BayesmotionError(f"max_iter (L-BFGS iterations of the projection) must be a "
                                f"positive integer, got {max_iter!r}")
@@ -276,12 +286,13 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
         parts = [_infer_one(model.model, model.predictor(int(i)), clip, frames, given, prior,
                             seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
                             latent_uncertainty and k == 0, likelihood_power, emotion_starts,
-                            n_eff, int(level_starts), float(start_jitter), method)
+                            n_eff, int(level_starts), float(start_jitter), method,
+                            staged_start)
                  for k, i in enumerate(idx)]
         return pool_posteriors(parts)
     return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
                       n_steps, max_iter, latent_uncertainty, likelihood_power, emotion_starts,
-                      n_eff, int(level_starts), float(start_jitter), method)
+                      n_eff, int(level_starts), float(start_jitter), method, staged_start)
 
 
 def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
@@ -301,7 +312,7 @@ def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
                latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices",
                n_eff=(float("inf"), False), level_starts=1, start_jitter=START_JITTER,
-               method="ensemble"):
+               method="ensemble", staged_start=False):
     import emcee
 
     t0 = time.perf_counter()
@@ -347,7 +358,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     if emotion_starts == "vertices":
         params, res, fits, levels_info = _vertex_choice(model, P, Ys, B, T, args, statics,
                                                        max_iter, inferred, conc, level_starts,
-                                                       seed, start_jitter)
+                                                       seed, start_jitter, staged_start)
         # the chosen level's latents and the free styles together, from just inside its vertex:
         # the clip's emotion may lie between levels (an interpolated clip: mean absolute error
         # 0.046 over s in {0, .25, .5, .75, 1} on generated handshakes, infer_speed.json)
@@ -427,7 +438,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
             "acceptance": acceptance, "sampler": method,
             "map_objective": float(res.fun), "map_iterations": int(res.nit),
             "emotion_starts": emotion_starts, "level_starts": level_starts,
-            "start_jitter": start_jitter, **levels_info,
+            "start_jitter": start_jitter, "staged_start": bool(staged_start), **levels_info,
             "start_objectives": [float(r.fun) for _, r in fits],
             "n_samples": int(chain.shape[0] * chain.shape[1]),
             "ess": float(chain.shape[0] * chain.shape[1] / np.max(tau))}
@@ -510,14 +521,14 @@ def _distance_from_training(model, P, params, fixed, Ys, T) -> dict:
 
 
 def _vertex_choice(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
-                   n_starts=1, seed=0, jitter=START_JITTER):
+                   n_starts=1, seed=0, jitter=START_JITTER, staged=False):
     """The emotion level with the largest posterior probability under the Laplace evidence of
     each level (bayesmotion.emotion.projection.project_levels) and the prior probability that the
     level
     is the largest coordinate; its projection, with the free emotion set just inside its
     vertex (the style sampler starts from the styles' mode at these latents)."""
     out = project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
-                         n_starts, seed, jitter)
+                         n_starts, seed, jitter, staged)
     log_ev = np.array([o[2] for o in out])
     logp = log_ev + np.log(_largest_prior(conc["emotion"]))
     prob = np.exp(logp - logp.max())

@@ -2,6 +2,11 @@
 L-BFGS, one jitted call per 100-iteration round), and the Laplace evidence of each emotion
 level.
 
+One concept: the MAP latents of one clip under a fixed model -- where the projection starts,
+the scaled optimiser (over the whole density or a part of it), and the Hessian it is judged
+by -- kept together because the starts, the scaling and the evidence share the same density
+and its banded curvature.
+
 The clip's latents X*, I* and its free style coordinates are found by MAP of the clip's
 predictive log-density (:func:`bayesmotion.emotion.density.clip_log_density`) with the model fixed,
 starting from the latents of the nearest training frames.
@@ -29,9 +34,9 @@ import numpy as np
 import scipy.optimize
 from jax.flatten_util import ravel_pytree
 
-from bayesmotion.emotion.density import clip_log_density
+from bayesmotion.emotion.density import clip_log_density, clip_terms
 from bayesmotion.gp.densities import LOG_2PI
-from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style
+from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style, style_log_prior
 from bayesmotion.model.predict import Predictor, restrict_to_styles
 from bayesmotion.optim import lbfgs
 
@@ -44,6 +49,27 @@ START_JITTER = 0.0
 STATIC_ARGS = ("int_factors", "dyn_factors", "init_var")
 
 
+PARTS = ("all", "bottom", "upper")
+
+
+def _neg_part(P, params, Ys, mask, fixed, conc, int_factors, dyn_factors, init_var,
+              part: str = "all"):
+    """-log p of the clip (``part="all"``), or of a part of it: "bottom", the bottom layer's
+    term alone (a function of X* only); "upper", the interaction and dynamics terms with the
+    free styles' prior (no X*-only term). Under ``jit`` the terms a part leaves out are not
+    computed."""
+    if part == "all":
+        return -clip_log_density(P, params, Ys, mask, fixed, conc, int_factors, dyn_factors,
+                                 init_var)
+    b, i, d = clip_terms(P, params, Ys, mask, fixed, int_factors, dyn_factors, init_var)
+    total = b if part == "bottom" else i + d + style_log_prior(params, conc)
+    return -jnp.where(jnp.isnan(total), -jnp.inf, total)
+
+
+def _subtree(params: dict, keys) -> dict:
+    return dict(params) if keys is None else {k: params[k] for k in keys}
+
+
 @partial(jax.jit, static_argnames=STATIC_ARGS)
 def _neg_value_and_grad(params, P, Ys, mask, fixed, conc, int_factors, dyn_factors, init_var):
     f = lambda p: -clip_log_density(P, p, Ys, mask, fixed, conc, int_factors, dyn_factors,
@@ -51,14 +77,16 @@ def _neg_value_and_grad(params, P, Ys, mask, fixed, conc, int_factors, dyn_facto
     return jax.value_and_grad(f)(params)
 
 
-@partial(jax.jit, static_argnames=STATIC_ARGS)
+@partial(jax.jit, static_argnames=STATIC_ARGS + ("keys", "part"))
 def _scaled_lbfgs(x, scale, n_iter, template, P, Ys, mask, fixed, conc, int_factors,
-                  dyn_factors, init_var) -> lbfgs.LbfgsResult:
-    """At most ``n_iter`` L-BFGS iterations on -log p over z = x / scale, in one call;
-    ``template`` gives the pytree layout of x (values unused). The result's x is unscaled."""
-    unravel = ravel_pytree(template)[1]
-    f = lambda z: -clip_log_density(P, unravel(z * scale), Ys, mask, fixed, conc, int_factors,
-                                    dyn_factors, init_var)
+                  dyn_factors, init_var, keys=None, part="all") -> lbfgs.LbfgsResult:
+    """At most ``n_iter`` L-BFGS iterations on -log p (or its ``part``, :func:`_neg_part`)
+    over z = x / scale, in one call. x holds the entries ``keys`` of ``template`` (all: None),
+    raveled; the other entries are held at their values in ``template``. The result's x is
+    unscaled."""
+    unravel = ravel_pytree(_subtree(template, keys))[1]
+    f = lambda z: _neg_part(P, {**template, **unravel(z * scale)}, Ys, mask, fixed, conc,
+                            int_factors, dyn_factors, init_var, part)
     r = lbfgs.minimize(jax.value_and_grad(f), x / scale, n_iter)
     return r._replace(x=r.x * scale)
 
@@ -127,27 +155,37 @@ def _style_start(model, factor: str, conc, nearest) -> np.ndarray:
 
 
 
-def minimize_scaled(params, args, statics, max_iter, round_iter: int = ROUND_ITER):
+def minimize_scaled(params, args, statics, max_iter, round_iter: int = ROUND_ITER, *,
+                    keys=None, part: str = "all"):
     """L-BFGS on -log p in coordinates scaled by |diag H|^(-1/2), the diagonal recomputed
     exactly (:func:`_diag_probes`) every ``round_iter`` iterations; each round is one jitted
-    call (bayesmotion.optim.lbfgs).
+    call (bayesmotion.optim.lbfgs). With ``keys`` (a tuple of entries of ``params``) only
+    those entries move, the others held; ``part`` minimises a part of -log p instead
+    (:func:`_neg_part`: "bottom" or "upper").
 
     The clip density is badly conditioned: the bottom layer's curvature in X is orders of
     magnitude above the dynamics' in I. Unscaled, 1000 iterations from the nearest training
     frames got a generated neutral handshake to -7,303 with the emotion held at neutral, where
     the generating latents alone score -9,884; scaled, 300 iterations reach -9,491 (scipy's
-    L-BFGS-B). Returns (params, a scipy ``OptimizeResult`` built from the last
-    round: ``fun`` (inf if never finite), ``nit`` and ``nfev`` summed over the rounds,
-    ``status`` and ``message`` from bayesmotion.optim.lbfgs; no ``jac``)."""
-    x0, unravel = ravel_pytree(params)
+    L-BFGS-B). Returns (params, a scipy ``OptimizeResult`` built from the last round:
+    ``fun`` (inf if never finite), ``nit`` and ``nfev`` summed over the rounds, ``status`` and
+    ``message`` from bayesmotion.optim.lbfgs; no ``jac``)."""
+    if part not in PARTS:
+        raise ValueError(f"part must be one of {PARTS}, got {part!r}")
+    keys = None if keys is None else tuple(keys)
+    sub = _subtree(params, keys)
+    x0, unravel = ravel_pytree(sub)
     x = np.asarray(x0, np.float64)
-    V = jnp.asarray(_diag_probes(params, args[0].dyn_lags.shape[0] + 1))
+    V = jnp.asarray(_diag_probes(sub, args[0].dyn_lags.shape[0] + 1))
     done, nfev, res = 0, 0, None
+    full = lambda v: {**params, **unravel(jnp.asarray(v))}
     while done < max_iter:
-        a = np.abs(_diag_flat(unravel(jnp.asarray(x)), V, args, statics))
+        a = np.abs(np.sum(np.asarray(V) * np.asarray(
+            _hvps(full(x), V, *args, **statics, keys=keys, part=part)), 0))
         scale = diagonal_scale(a)
         n = min(round_iter, max_iter - done)
-        r = _scaled_lbfgs(jnp.asarray(x), jnp.asarray(scale), n, params, *args, **statics)
+        r = _scaled_lbfgs(jnp.asarray(x), jnp.asarray(scale), n, params, *args, **statics,
+                          keys=keys, part=part)
         x = np.asarray(r.x, np.float64)
         nit, status = int(r.nit), int(r.status)
         done += max(nit, 1)
@@ -158,7 +196,7 @@ def minimize_scaled(params, args, statics, max_iter, round_iter: int = ROUND_ITE
         if status != lbfgs.MAX_ITER:  # converged (or no progress) at this scaling
             break
     res.x, res.nit = x, done
-    return unravel(jnp.asarray(x)), res
+    return full(x), res
 
 
 @partial(jax.jit, static_argnames=STATIC_ARGS)
@@ -284,7 +322,6 @@ def _diag_probes(params, period: int) -> np.ndarray:
     probes V_p, diag H = sum_p V_p * (H V_p): A Q_X + (order + 1) Q_I + n_style products,
     whatever the clip length.
     """
-    B = params["I"].shape[0]
     probes = []
     for key, v in params.items():
         shape = np.shape(v)
@@ -292,7 +329,7 @@ def _diag_probes(params, period: int) -> np.ndarray:
             probes.extend((key, (a, slice(None), q)) for a in range(shape[0])
                           for q in range(shape[2]))
         elif key == "I":
-            probes.extend((key, (slice(c, B, period), q)) for c in range(period)
+            probes.extend((key, (slice(c, shape[0], period), q)) for c in range(period)
                           for q in range(shape[1]))
         else:
             probes.extend((key, (j,)) for j in range(int(np.prod(shape))))
@@ -340,14 +377,16 @@ def best_fit(fits):
     return best
 
 
-@partial(jax.jit, static_argnames=STATIC_ARGS)
-def _hvps(params, V, P, Ys, mask, fixed, conc, int_factors, dyn_factors, init_var):
-    """(n, d) rows H v for each row v of ``V``, H the Hessian of -log p over ``params``
-    (ravel_pytree order): one linearisation of the gradient, then the products in chunks of
-    at most 64 (memory bounded by the chunk, not by n)."""
-    z0, unravel = ravel_pytree(params)
-    f = lambda z: -clip_log_density(P, unravel(z), Ys, mask, fixed, conc, int_factors,
-                                    dyn_factors, init_var)
+@partial(jax.jit, static_argnames=STATIC_ARGS + ("keys", "part"))
+def _hvps(params, V, P, Ys, mask, fixed, conc, int_factors, dyn_factors, init_var, keys=None,
+          part="all"):
+    """(n, d) rows H v for each row v of ``V``, H the Hessian of -log p (or its ``part``,
+    :func:`_neg_part`) over the entries ``keys`` of ``params`` (all: None; ravel_pytree
+    order), the others held: one linearisation of the gradient, then the products in chunks
+    of at most 64 (memory bounded by the chunk, not by n)."""
+    z0, unravel = ravel_pytree(_subtree(params, keys))
+    f = lambda z: _neg_part(P, {**params, **unravel(z)}, Ys, mask, fixed, conc, int_factors,
+                            dyn_factors, init_var, part)
     _, hvp = jax.linearize(jax.grad(f), z0)
     n, d = V.shape
     chunk = -(-n // -(-n // HVP_CHUNK))  # equal chunks of at most 64: little padding
@@ -493,8 +532,22 @@ def _jittered(params: dict, sd: float, rng: np.random.Generator) -> dict:
     return out
 
 
+def staged_bottom(params, args, statics, max_iter) -> jnp.ndarray:
+    """The first stage of a staged start: X* minimising the bottom layer's term alone (no
+    style enters it, so one X* serves every level), from ``params``' X."""
+    return minimize_scaled(params, args, statics, max_iter, keys=("X",), part="bottom")[0]["X"]
+
+
+def staged_upper(params, args, statics, max_iter) -> dict:
+    """The second stage of a staged start: with X* held, I* and the free styles minimising the
+    interaction and dynamics terms (and the styles' prior), from ``params``."""
+    keys = tuple(k for k in params if k != "X")
+    return minimize_scaled(params, args, statics, max_iter, keys=keys, part="upper")[0]
+
+
 def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
-                   n_starts: int = 1, seed: int = 0, jitter: float = START_JITTER):
+                   n_starts: int = 1, seed: int = 0, jitter: float = START_JITTER,
+                   staged: bool = False):
     """One projection per emotion level k with the emotion held at k's style vector, from the
     latents of the nearest frames of k's training trials; the other free styles (the couple,
     when not given) are projected with it. Each level's density drops the style cells it
@@ -503,13 +556,25 @@ def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
     coordinate (seeded by ``seed`` and the level, so the starts of ``n_starts`` = k >= 2 are
     the first k of any larger ``n_starts``); with one start, ``jitter`` > 0 jitters that
     start, which is then the second start of any larger ``n_starts``.
-    The best optimum is kept: the clip density is multimodal in the latents. Returns per level:
+    The best optimum is kept: the clip density is multimodal in the latents.
+
+    ``staged`` starts each level in two stages before the joint projection: the
+    latents of the nearest training frames put every frame's X* far from where the bottom layer
+    explains it and make I* jump between training trials (on a held-out Bandai walk the start
+    scored -log p of 10^6 against 10^3 at the optimum), and L-BFGS spent hundreds of
+    iterations of the full density getting back. First X* by the bottom term alone
+    (:func:`staged_bottom`, from the nearest frames overall; shared by the levels), then per
+    level I* and the free styles by the other terms with X* held (:func:`staged_upper`, from
+    the level's nearest frames; each evaluation skips the bottom layer, the most expensive
+    term); the joint projection starts there. ``benchmarks/projection_starts.py`` measures
+    both starts on the same folds. Returns per level:
     (params, scipy result, log evidence, info) -- see :func:`laplace_log_evidence`; info adds
     every start's ``start_objectives`` and ``start_log_evidence``."""
     Pm, Yp, mask, fixed_j, conc_j = args
     others = [f for f in inferred if f != "emotion"]
     conc_o = {f: conc[f] for f in others}
     jobs, owner, level_args = [], [], []
+    shared_X = None
     for k, rows in enumerate(_level_rows(model)):
         rng = np.random.default_rng([seed, k])
         params = _start_params(model, Ys, B, rows, others, conc)
@@ -517,10 +582,20 @@ def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
         Pk = seen_predictor(Pm, fixed_k, statics["int_factors"], statics["dyn_factors"])
         args_k = (Pk, Yp, mask, fixed_k, {f: conc_j[f] for f in others})
         level_args.append(args_k)
+        if staged and shared_X is None:
+            nearest = _start_params(model, Ys, B, None, others, conc)
+            shared_X = staged_bottom({**params, "X": nearest["X"]}, args_k, statics, max_iter)
+        staged_starts = None if not staged else [
+            staged_upper({**p, "X": shared_X}, args_k, statics, max_iter)
+            for p in other_starts(params, others, conc_o)]
         for j in range(n_starts):
-            start = _jittered(params, jitter, rng) if jitter > 0 and (
-                j > 0 or n_starts == 1) else params
-            for p in other_starts(start, others, conc_o):
+            jitter_j = jitter > 0 and (j > 0 or n_starts == 1)
+            if staged:
+                starts = [_jittered(p, jitter, rng) if jitter_j else p for p in staged_starts]
+            else:
+                start = _jittered(params, jitter, rng) if jitter_j else params
+                starts = other_starts(start, others, conc_o)
+            for p in starts:
                 jobs.append((p, args_k))
                 owner.append((k, j))
     # every level, start and other-style start in one batch: one program per L-BFGS round
