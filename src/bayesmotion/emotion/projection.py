@@ -180,8 +180,7 @@ def minimize_scaled(params, args, statics, max_iter, round_iter: int = ROUND_ITE
     done, nfev, res = 0, 0, None
     full = lambda v: {**params, **unravel(jnp.asarray(v))}
     while done < max_iter:
-        a = np.abs(np.sum(np.asarray(V) * np.asarray(
-            _hvps(full(x), V, *args, **statics, keys=keys, part=part)), 0))
+        a = np.abs(_diag_flat(full(x), V, args, statics, keys, part))
         scale = diagonal_scale(a)
         n = min(round_iter, max_iter - done)
         r = _scaled_lbfgs(jnp.asarray(x), jnp.asarray(scale), n, params, *args, **statics,
@@ -299,10 +298,11 @@ def diagonal_scale(a: np.ndarray) -> np.ndarray:
     return np.where(a > 0, 1.0 / np.sqrt(np.maximum(a, 1e-6 * top)), 1.0)
 
 
-def _diag_flat(params, V, args, statics) -> np.ndarray:
-    """Exact diag of the Hessian of -log p over ``params`` (flat), from the probes ``V`` of
-    :func:`_diag_probes`."""
-    return np.sum(np.asarray(V) * np.asarray(_hvps(params, V, *args, **statics)), 0)
+def _diag_flat(params, V, args, statics, keys=None, part="all") -> np.ndarray:
+    """Exact diag of the Hessian of -log p (or its ``part``) over the entries ``keys`` of
+    ``params`` (all: None; flat), from the probes ``V`` of :func:`_diag_probes`."""
+    return np.sum(np.asarray(V) * np.asarray(
+        _hvps(params, V, *args, **statics, keys=keys, part=part)), 0)
 
 
 def diag_hessian(params, args, statics) -> dict:
