@@ -31,8 +31,11 @@ below is generated with ``lookahead`` (``FittedHGPDM.generate(lookahead=...)``).
   clip) probability of the source and of the target emotion in sliding windows of
   ``window`` frames, the limb motion after the switch over before it, and the body-frame jerk
   in the switch window over the jerk elsewhere (1 means no jump at the switch) and over the
-  jerkier side's (before or after the switch: a faster emotion jerks more), and how far the
-  interaction latents jump there (:func:`transition_row`).
+  jerkier side's (before or after the switch: a faster emotion jerks more), with that side's
+  own spread: the same ratio for every window of the switch window's width wholly on that
+  side, their 90th percentile and the switch window's rank among them (a rank above 0.9 is a
+  jump that stands out from the side's own variation), and how far the interaction latents
+  jump there (:func:`transition_row`).
 * **Built-in handshakes** (``HGPDM().fit(load_handshakes())``, ``handshake_iter`` iterations
   at most): per emotion, the minimum distance between the two right hands in a rollout as
   long as a training trial (against the real CMU handshake's), and over ``long_frames``
@@ -217,6 +220,24 @@ def mechanisms(data: MotionDataset, walks_model, real_speed: float, cfg: Setting
     return out
 
 
+def _side_windows(j2: np.ndarray, start: int, length: int, width: int, before: float,
+                  after: float) -> dict:
+    """The switch window's jerk against the jerkier side's own variation: the same ratio
+    (sqrt of mean squared jerk over the side's mean) for every window of the switch window's
+    ``width`` lying wholly on that side; its 90th percentile, and the fraction of those
+    windows less jerky than the switch window (its rank: 0.5 is a typical window of that
+    side, above 0.9 a jump that stands out). None where the side is shorter than a window."""
+    side = (j2[start + length:] if after >= before else j2[:max(start - 3, 0)])
+    ref = max(before, after)
+    if side.size < width or width < 1:
+        return {"jerk_side_windows_q90": None, "jerk_switch_rank": None,
+                "n_side_windows": 0}
+    windows = np.sqrt(np.convolve(side, np.ones(width), "valid") / width / ref)
+    at = np.sqrt(j2[max(start - 3, 0):start + length].mean() / ref)
+    return {"jerk_side_windows_q90": float(np.quantile(windows, 0.9)),
+            "jerk_switch_rank": float(np.mean(windows < at)), "n_side_windows": int(windows.size)}
+
+
 def transition_row(model, judge: LogisticRegression, source: str, target: str, n_frames: int,
                    length: int, window: int, seed: int, lookahead: float,
                    match: bool = False) -> dict:
@@ -244,6 +265,7 @@ def transition_row(model, judge: LogisticRegression, source: str, target: str, n
     switch[max(start - 3, 0):start + length] = True
     before, after = j2[:max(start - 3, 0)].mean(), j2[start + length:].mean()
     at = j2[switch].mean()
+    ref = _side_windows(j2, start, length, int(switch.sum()), before, after)
     step = np.linalg.norm(np.diff(roll.I, axis=0), axis=1)  # step k: frame k -> k + 1
     moving = np.zeros(step.size, bool)
     moving[max(start - 1, 0):start + length] = True
@@ -258,6 +280,7 @@ def transition_row(model, judge: LogisticRegression, source: str, target: str, n
             "jerk_switch_over_before": float(np.sqrt(at / before)),
             "jerk_switch_over_after": float(np.sqrt(at / after)),
             "jerk_switch_over_jerkier_side": float(np.sqrt(at / max(before, after))),
+            **ref,
             "latent_step_switch_max_over_median": float(step[moving].max()
                                                         / np.median(step[~moving])),
             "latent_distance_switch_max": float(near.max()), "start": roll.start}

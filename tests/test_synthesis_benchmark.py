@@ -91,6 +91,34 @@ def test_windowed_probability_scores_consecutive_windows():
         assert p[k] == pytest.approx(direct)
 
 
+def test_switch_window_is_ranked_among_the_jerkier_sides_windows():
+    """The switch window (frames start - 3 .. start + length of the squared-jerk series) is
+    ranked among the windows of its width on the jerkier side: a spike there outranks every
+    one of them, a switch as jerky as a flat side outranks none; the 90th percentile is of
+    the side's windows' ratios to the side's mean; a side shorter than a window gives None."""
+    start, length, width = 20, 5, 8
+    j2 = np.ones(60)
+    j2[start + length:] = 4.0  # the after side is the jerkier, every window at its mean
+    j2[start - 3:start + length] = 16.0
+    out = synthesis._side_windows(j2, start, length, width, 1.0, 4.0)
+    assert out["jerk_switch_rank"] == 1.0
+    assert out["jerk_side_windows_q90"] == pytest.approx(1.0)
+    assert out["n_side_windows"] == 60 - (start + length) - width + 1
+    j2[start - 3:start + length] = 4.0
+    assert synthesis._side_windows(j2, start, length, width, 1.0, 4.0)["jerk_switch_rank"] == 0
+    rng = np.random.default_rng(0)
+    j2 = np.concatenate([np.ones(start - 3), np.full(width, 2.0),
+                         rng.uniform(1, 3, 60 - start - length)])
+    after = j2[start + length:].mean()
+    out = synthesis._side_windows(j2, start, length, width, 1.0, after)
+    side = j2[start + length:]
+    ratios = [np.sqrt(side[k:k + width].mean() / after) for k in range(side.size - width + 1)]
+    assert out["jerk_side_windows_q90"] == pytest.approx(np.quantile(ratios, 0.9))
+    assert out["jerk_switch_rank"] == pytest.approx(
+        np.mean(np.array(ratios) < np.sqrt(2.0 / after)))
+    assert synthesis._side_windows(np.ones(30), 20, 5, 8, 1.0, 2.0)["jerk_switch_rank"] is None
+
+
 def test_transition_row_measures_the_rollout_it_names(tiny_model):
     """A happy -> sad transition on the tiny model: each window's probabilities are the judge's
     on that window of the same (seeded) rollout; the jerkier side's ratio is the smaller of the
@@ -116,15 +144,21 @@ def test_transition_row_measures_the_rollout_it_names(tiny_model):
             clip_features(m.select(slice(a, a + W)))[None])[0, col])
     assert row["jerk_switch_over_jerkier_side"] == pytest.approx(
         min(row["jerk_switch_over_before"], row["jerk_switch_over_after"]))
+    assert 0 <= row["jerk_switch_rank"] <= 1 and row["n_side_windows"] >= 1
     assert row["latent_step_switch_max_over_median"] > 0
     assert 0 <= row["latent_distance_switch_max"] < np.inf
     matched = synthesis.transition_row(tiny_model, judge, "happy", "sad", T, L, W, 3, 0.0, True)
     assert "the target continues training trial" in matched["start"]
     assert "continues" not in row["start"]
     block = {"sad": row, "angry": {**row, "p_target_last_window": 0.1,
-                                   "jerk_switch_over_jerkier_side": 9.0},
+                                   "jerk_switch_over_jerkier_side": 9.0,
+                                   "jerk_switch_rank": 1.0},
              "happy": {"error": "refused"}}
     s = transition_lengths.summary(block)
     assert s["errors"] == 1
     assert s["jerk_switch_over_jerkier_side"]["worst"] == 9.0
+    assert s["jerk_switch_rank"]["worst"] == 1.0
+    head = transition_lengths._headline({"length": L, "lookahead": 0.0, "matched": False,
+                                         "summary": s})
+    assert head["value"] == 1.0 and head["met"] is False
     assert s["p_target_last_window"]["worst"] == min(0.1, row["p_target_last_window"])
