@@ -220,22 +220,20 @@ def mechanisms(data: MotionDataset, walks_model, real_speed: float, cfg: Setting
     return out
 
 
-def _side_windows(j2: np.ndarray, start: int, length: int, width: int, before: float,
-                  after: float) -> dict:
-    """The switch window's jerk against the jerkier side's own variation: the same ratio
-    (sqrt of mean squared jerk over the side's mean) for every window of the switch window's
-    ``width`` lying wholly on that side; its 90th percentile, and the fraction of those
-    windows less jerky than the switch window (its rank: 0.5 is a typical window of that
-    side, above 0.9 a jump that stands out). None where the side is shorter than a window."""
-    side = (j2[start + length:] if after >= before else j2[:max(start - 3, 0)])
-    ref = max(before, after)
+def _side_windows(side: np.ndarray, at: float, ref: float, width: int) -> dict:
+    """The switch window's jerk against the jerkier side's own variation. ``side``: that
+    side's squared jerks, ``ref`` their mean, ``at`` the switch window's mean, ``width`` its
+    frames. The ratio sqrt(mean / ref) of every ``width``-frame window of the side; their 90th
+    percentile, and the fraction of them less jerky than the switch window (its rank: 0.5 is
+    a typical window of that side, above 0.9 a jump that stands out). None where the side is
+    shorter than a window."""
     if side.size < width or width < 1:
         return {"jerk_side_windows_q90": None, "jerk_switch_rank": None,
                 "n_side_windows": 0}
     windows = np.sqrt(np.convolve(side, np.ones(width), "valid") / width / ref)
-    at = np.sqrt(j2[max(start - 3, 0):start + length].mean() / ref)
     return {"jerk_side_windows_q90": float(np.quantile(windows, 0.9)),
-            "jerk_switch_rank": float(np.mean(windows < at)), "n_side_windows": int(windows.size)}
+            "jerk_switch_rank": float(np.mean(windows < np.sqrt(at / ref))),
+            "n_side_windows": int(windows.size)}
 
 
 def transition_row(model, judge: LogisticRegression, source: str, target: str, n_frames: int,
@@ -265,7 +263,8 @@ def transition_row(model, judge: LogisticRegression, source: str, target: str, n
     switch[max(start - 3, 0):start + length] = True
     before, after = j2[:max(start - 3, 0)].mean(), j2[start + length:].mean()
     at = j2[switch].mean()
-    ref = _side_windows(j2, start, length, int(switch.sum()), before, after)
+    jerkier = j2[start + length:] if after >= before else j2[:max(start - 3, 0)]
+    ref = _side_windows(jerkier, at, max(before, after), int(switch.sum()))
     step = np.linalg.norm(np.diff(roll.I, axis=0), axis=1)  # step k: frame k -> k + 1
     moving = np.zeros(step.size, bool)
     moving[max(start - 1, 0):start + length] = True

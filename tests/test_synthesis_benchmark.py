@@ -92,31 +92,25 @@ def test_windowed_probability_scores_consecutive_windows():
 
 
 def test_switch_window_is_ranked_among_the_jerkier_sides_windows():
-    """The switch window (frames start - 3 .. start + length of the squared-jerk series) is
-    ranked among the windows of its width on the jerkier side: a spike there outranks every
-    one of them, a switch as jerky as a flat side outranks none; the 90th percentile is of
-    the side's windows' ratios to the side's mean; a side shorter than a window gives None."""
-    start, length, width = 20, 5, 8
-    j2 = np.ones(60)
-    j2[start + length:] = 4.0  # the after side is the jerkier, every window at its mean
-    j2[start - 3:start + length] = 16.0
-    out = synthesis._side_windows(j2, start, length, width, 1.0, 4.0)
+    """The switch window is ranked among the windows of its width on the jerkier side: a
+    spike outranks every one of them, a switch as jerky as a flat side outranks none; the
+    90th percentile is of the windows' ratios to the side's mean; a side shorter than a
+    window gives None."""
+    width = 8
+    flat = np.full(35, 4.0)
+    out = synthesis._side_windows(flat, 16.0, 4.0, width)
     assert out["jerk_switch_rank"] == 1.0
     assert out["jerk_side_windows_q90"] == pytest.approx(1.0)
-    assert out["n_side_windows"] == 60 - (start + length) - width + 1
-    j2[start - 3:start + length] = 4.0
-    assert synthesis._side_windows(j2, start, length, width, 1.0, 4.0)["jerk_switch_rank"] == 0
-    rng = np.random.default_rng(0)
-    j2 = np.concatenate([np.ones(start - 3), np.full(width, 2.0),
-                         rng.uniform(1, 3, 60 - start - length)])
-    after = j2[start + length:].mean()
-    out = synthesis._side_windows(j2, start, length, width, 1.0, after)
-    side = j2[start + length:]
-    ratios = [np.sqrt(side[k:k + width].mean() / after) for k in range(side.size - width + 1)]
+    assert out["n_side_windows"] == 35 - width + 1
+    assert synthesis._side_windows(flat, 4.0, 4.0, width)["jerk_switch_rank"] == 0
+    side = np.random.default_rng(0).uniform(1, 3, 35)
+    ref = side.mean()
+    out = synthesis._side_windows(side, 2.0, ref, width)
+    ratios = np.array([np.sqrt(side[k:k + width].mean() / ref)
+                       for k in range(side.size - width + 1)])
     assert out["jerk_side_windows_q90"] == pytest.approx(np.quantile(ratios, 0.9))
-    assert out["jerk_switch_rank"] == pytest.approx(
-        np.mean(np.array(ratios) < np.sqrt(2.0 / after)))
-    assert synthesis._side_windows(np.ones(30), 20, 5, 8, 1.0, 2.0)["jerk_switch_rank"] is None
+    assert out["jerk_switch_rank"] == pytest.approx(np.mean(ratios < np.sqrt(2.0 / ref)))
+    assert synthesis._side_windows(np.ones(5), 2.0, 1.0, width)["jerk_switch_rank"] is None
 
 
 def test_transition_row_measures_the_rollout_it_names(tiny_model):
