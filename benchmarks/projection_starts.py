@@ -51,7 +51,9 @@ QUICK = {"contents": WALKS[2:], "fps": 7.5, "model_frames": 20, "max_iter": 30,
 JITTER = 0.02
 
 
-def _answers(log_ev: np.ndarray, truth: np.ndarray) -> dict:
+def level_answers(log_ev: np.ndarray, truth: np.ndarray) -> dict:
+    """Plain-evidence label answers of (folds, K) level log evidences under a flat prior:
+    accuracy, ECE, 90% label-set coverage, wrong answers with P >= 0.99, the probabilities."""
     from bayesmotion.emotion.evidence import level_posterior
     from bayesmotion.evaluation.calibration import label_calibration
 
@@ -128,7 +130,7 @@ def summarize(rows: list, levels: list, S: int) -> dict:
     keys = ("accuracy", "ece", "label_set_coverage", "confident_wrong")
 
     def spread_of(subsets):  # mean, min and max over every choice of starts
-        runs = [_answers(best_of(c), truth) for c in subsets]
+        runs = [level_answers(best_of(c), truth) for c in subsets]
         return {"subsets": len(runs), **{
             key: {"mean": float(np.mean([r[key] for r in runs])),
                   "min": float(np.min([r[key] for r in runs])),
@@ -136,7 +138,7 @@ def summarize(rows: list, levels: list, S: int) -> dict:
 
     jittered = range(1, S)
     best = best_of(range(S))
-    unjittered, many = _answers(ev[..., 0], truth), _answers(best, truth)
+    unjittered, many = level_answers(ev[..., 0], truth), level_answers(best, truth)
     # the best of k jittered starts, every such choice among the S - 1 run here; and the same
     # with the unjittered start added (level_starts = k >= 2 at start_jitter=JITTER runs one
     # of those choices, the first k - 1 jittered starts)
@@ -146,7 +148,7 @@ def summarize(rows: list, levels: list, S: int) -> dict:
                                                   itertools.combinations(jittered, k - 1))}
                        for k in range(1, S + 1)]
     single = [{"start": j, "jitter": 0.0 if j == 0 else JITTER,
-               **{key: v for key, v in _answers(ev[..., j], truth).items()
+               **{key: v for key, v in level_answers(ev[..., j], truth).items()
                   if key != "probabilities"}} for j in range(S)]
     beaten = (obj < obj[..., :1]).sum(2)  # jittered starts better than the unjittered one
     spread = ev.max(2) - ev.min(2)  # (folds, K)
@@ -223,7 +225,7 @@ def _single_starts(rows: list, truth: np.ndarray) -> dict:
     out = {}
     for name in ("nearest", "staged"):
         ev = np.array([r["single_start"][name]["log_evidence"] for r in rows])
-        ans = _answers(ev, truth)
+        ans = level_answers(ev, truth)
         out[name] = {**{k: v for k, v in ans.items() if k != "probabilities"},
                      "seconds": float(np.median([r["single_start"][name]["seconds"]
                                                  for r in rows]))}
@@ -232,7 +234,7 @@ def _single_starts(rows: list, truth: np.ndarray) -> dict:
     obj = np.stack([[r["single_start"][n]["objectives"] for r in rows]
                     for n in ("nearest", "staged")], -1)
     best = np.take_along_axis(ev, np.argmin(obj, 2)[..., None], 2)[..., 0]
-    ans = _answers(best, truth)
+    ans = level_answers(best, truth)
     out["best_of_both"] = {k: v for k, v in ans.items() if k != "probabilities"}
     out["staged_lower_objective"] = float(np.mean(obj[..., 1] < obj[..., 0]))
     return out

@@ -60,6 +60,7 @@ BENCHMARKS = [
     "jax_versions",
     "sparse_scaling",
     "projection_starts",
+    "projection_budget",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 
