@@ -203,7 +203,9 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             1.36 s with "vertices", 0.53 s with "nearest"), but the projection usually stops
             at this limit, not at an optimum; the benchmarks use 1000 (on one held-out
             handshake the best optimum improved by 117 nats from 200 to 1000 iterations and
-            the label went from wrong to right).
+            the label went from wrong to right). On 60-frame real walks 200 is too few: the
+            answer at 200 matched the 1000-iteration one in 9 of 16 held-out walks, at 400 in
+            all 16 (``benchmarks/results/projection_budget.json``).
         latent_uncertainty: compute the diagonal Laplace sd of the latents.
         likelihood_power: eta in the tempered posterior p(s) p(clip | s)^eta over the styles
             (generalised Bayes). 1, the default, is the plain posterior. Below 1 widens it to
