@@ -30,7 +30,7 @@ if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
 from _common import BANDAI_ROOT, bandai_present, headline  # noqa: E402
-from projection_starts import WALKS, level_answers  # noqa: E402
+from projection_starts import WALKS, level_answers, walks_model  # noqa: E402
 
 FULL = {"contents": WALKS, "fps": 15.0, "model_frames": 60, "max_iter": 300, "refit_iter": 100,
         "budgets": (50, 100, 200, 400, 1000), "n_steps": 60}
@@ -39,24 +39,16 @@ QUICK = {"contents": WALKS[2:], "fps": 7.5, "model_frames": 20, "max_iter": 30,
 
 
 def run(quick: bool, root: str | Path | None = None) -> dict:
-    from bayesmotion.data.motion import MotionDataset
-    from bayesmotion.datasets.bandai import load_bandai
     from bayesmotion.emotion.infer import infer_emotion
     from bayesmotion.emotion.ood import OutOfDistributionWarning
     from bayesmotion.evaluation.evaluate import _fold_init
-    from bayesmotion.model.spec import HGPDM
 
     cfg = dict(QUICK if quick else FULL)
     root = Path(root) if root is not None else BANDAI_ROOT
     base = {"settings": {**cfg, "budgets": list(cfg["budgets"])}}
     if not bandai_present(root):
         return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
-    data = load_bandai(root, content=cfg["contents"], fps=cfg["fps"])
-    clips = MotionDataset(tuple(t.select(slice(0, cfg["model_frames"])) for t in data),
-                          {"emotion": data.levels["emotion"]}, name="Bandai walks")
-    spec = HGPDM(latent_dim=6, interaction_dim=3, interaction_factors=("emotion",),
-                 dynamics_factors=("emotion",), canonical_side=True, pose_space="affective")
-    full = spec.fit(clips, max_iter=cfg["max_iter"], progress=False)
+    clips, spec, full = walks_model(cfg, root)
     rows = []
     for i, (train, held) in enumerate(clips.leave_one_out()):
         keep = [r for r in range(len(clips)) if r != i]

@@ -65,25 +65,34 @@ def level_answers(log_ev: np.ndarray, truth: np.ndarray) -> dict:
             "confident_wrong": cal["confident_wrong"], "probabilities": probs.tolist()}
 
 
-def run(quick: bool, root: str | Path | None = None) -> dict:
+def walks_model(cfg: dict, root: Path):
+    """The walks of ``cfg`` (contents, fps, cropped to model_frames) as a dataset with the
+    emotion factor, the benchmarks' one-actor affective-pose spec, and its fit on all of them
+    (``cfg["max_iter"]`` iterations): what each fold's refit starts from."""
     from bayesmotion.data.motion import MotionDataset
     from bayesmotion.datasets.bandai import load_bandai
-    from bayesmotion.emotion.infer import infer_emotion
-    from bayesmotion.emotion.ood import OutOfDistributionWarning
-    from bayesmotion.evaluation.evaluate import _fold_init
     from bayesmotion.model.spec import HGPDM
 
-    cfg = dict(QUICK if quick else FULL)
-    root = Path(root) if root is not None else BANDAI_ROOT
-    base = {"settings": dict(cfg)}
-    if not bandai_present(root):
-        return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
     data = load_bandai(root, content=cfg["contents"], fps=cfg["fps"])
     clips = MotionDataset(tuple(t.select(slice(0, cfg["model_frames"])) for t in data),
                           {"emotion": data.levels["emotion"]}, name="Bandai walks")
     spec = HGPDM(latent_dim=6, interaction_dim=3, interaction_factors=("emotion",),
                  dynamics_factors=("emotion",), canonical_side=True, pose_space="affective")
     full = spec.fit(clips, max_iter=cfg["max_iter"], progress=False)
+    return clips, spec, full
+
+
+def run(quick: bool, root: str | Path | None = None) -> dict:
+    from bayesmotion.emotion.infer import infer_emotion
+    from bayesmotion.emotion.ood import OutOfDistributionWarning
+    from bayesmotion.evaluation.evaluate import _fold_init
+
+    cfg = dict(QUICK if quick else FULL)
+    root = Path(root) if root is not None else BANDAI_ROOT
+    base = {"settings": dict(cfg)}
+    if not bandai_present(root):
+        return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
+    clips, spec, full = walks_model(cfg, root)
     levels = list(clips.levels["emotion"])
     rows = []
     for i, (train, held) in enumerate(clips.leave_one_out()):
