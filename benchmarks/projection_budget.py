@@ -7,7 +7,8 @@ L-BFGS iterations (it stops earlier where it converges), and compares the levels
 Laplace evidence at each end point. This runs the 16 shared Bandai walks leave-one-clip-out
 at the settings of ``bandai_inference.py`` and ``projection_starts.py`` (15 fps, 60 frames,
 the affective pose space, one fold refit of 100 warm-started iterations, the nearest-frame
-start) and infers every held-out walk at each budget of ``BUDGETS``, from the same fold model.
+start) and infers every held-out walk at each budget of ``FULL["budgets"]``, from the same
+fold model, each inference from scratch as a user's call with that ``max_iter`` would run.
 Reported per budget: the plain-evidence answers (accuracy, ECE, 90% label-set coverage, wrong
 answers with P >= 0.99), how often the answer is the largest budget's, and the median seconds
 of an inference (the first fold's first call includes compilation). ``--quick``: two walk
