@@ -42,6 +42,7 @@ QUICK = {"fps": 10.0, "max_iter": 20, "repeats": 1, "interp_s": (0.0, 1.0)}
 # the default (the level evidence) first: its first call compiles everything it uses
 MODES = ("vertices", "nearest")
 JITTER = 0.02  # the jittered level starts measured beside the default's
+PREVIOUS_MAX_ITER = 200  # infer_emotion's earlier default projection budget, timed beside today's
 
 
 def run(quick: bool) -> dict:
@@ -58,10 +59,10 @@ def run(quick: bool) -> dict:
     model = HGPDM().fit(train, max_iter=cfg["max_iter"], progress=False)
     fit_s = time.perf_counter() - t
 
-    def once(trial, seed, mode):
+    def once(trial, seed, mode, **kw):
         t = time.perf_counter()
         ep = infer_emotion(model, trial, couple=trial.labels["couple"], seed=seed,
-                           emotion_starts=mode)
+                           emotion_starts=mode, **kw)
         return time.perf_counter() - t, ep
 
     out, rows = {}, []
@@ -74,7 +75,8 @@ def run(quick: bool) -> dict:
                 calls.append({"trial": trial.name, "seconds": s, "ess": ep.info["ess"],
                               "label": ep.label, "true": trial.labels["emotion"],
                               "stage_seconds": ep.info["stage_seconds"],
-                              "map_iterations": ep.info["map_iterations"]})
+                              "map_iterations": ep.info["map_iterations"],
+                              "level_iterations": ep.info.get("level_iterations")})
         sec = np.array([c["seconds"] for c in calls])
         ess = np.array([c["ess"] for c in calls])
         stages = {k: float(np.median([c["stage_seconds"][k] for c in calls]))
@@ -99,6 +101,21 @@ def run(quick: bool) -> dict:
                              note="; ".join(f"{k} {v:.3f}" for k, v in mae.items())))
         out[mode] = {"first_call_seconds": first_s, "calls": calls,
                      "median_stage_seconds": stages, "interpolation": interp}
+    calls = []
+    for r in range(cfg["repeats"]):
+        for trial in held:
+            s, ep = once(trial, r + 1, "vertices", max_iter=PREVIOUS_MAX_ITER)
+            calls.append({"trial": trial.name, "seconds": s, "label": ep.label,
+                          "true": trial.labels["emotion"],
+                          "level_iterations": ep.info["level_iterations"]})
+    right = sum(c["label"] == c["true"] for c in calls)
+    capped = sum(n >= PREVIOUS_MAX_ITER for c in calls for n in c["level_iterations"])
+    n_levels = sum(len(c["level_iterations"]) for c in calls)
+    rows.append(headline(f"  the same at max_iter={PREVIOUS_MAX_ITER} (the previous default)",
+                         float(np.median([c["seconds"] for c in calls])), "s",
+                         note=f"labels right {right}/{len(calls)}; level projections stopped "
+                              f"at the limit: {capped}/{n_levels}"))
+    out["vertices"]["previous_max_iter"] = {"max_iter": PREVIOUS_MAX_ITER, "calls": calls}
     interp = _interpolation(model, "vertices", cfg["interp_s"], start_jitter=JITTER)
     mae = {k: v["mean_abs_error"] for k, v in interp.items()}
     rows.append(headline(f"  interpolated clips, mean |inferred - s| (vertices, start_jitter="

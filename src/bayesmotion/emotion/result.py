@@ -34,8 +34,10 @@ class EmotionPosterior:
         log_prob: (n_chains, n_draws). info: n_frames, mirrored (per actor: the model's
             canonical side mirrored the clip), seconds, acceptance, tau, map objective,
             likelihood_power; with level evidence also level_log_evidence,
-            level_probabilities, effective_frames, evidence_calibrated, evidence_power,
-            probabilities_in_distribution, in_distribution_weight, level_prior; ood.
+            level_probabilities, level_objectives, level_iterations (each level's
+            projection: -log p at its end and its L-BFGS iterations), effective_frames,
+            evidence_calibrated, evidence_power, probabilities_in_distribution,
+            in_distribution_weight, level_prior; ood.
         log_likelihood: emotion coordinates (n, K) -> (n,) the clip's untempered
             log-likelihood (closed simplex), when the emotion was the only inferred factor of a
             single model; None otherwise (pooled draws, or the couple inferred too). It gives the
