@@ -131,6 +131,11 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
         capsys, ["infer", str(model), *clips, "--start-jitter", "-1"])
     assert "--level-starts > 1 needs --start-jitter > 0" in one_line_error(
         capsys, ["infer", str(model), *clips, "--level-starts", "3"])
+    assert out["max_iter"] == 400  # infer_emotion's default
+    assert main(["infer", str(model), *clips, "--json", "--max-iter", "3"]) == 0
+    short = json.loads(capsys.readouterr().out)
+    # three iterations per projection stop far from the default's optimum
+    assert short["max_iter"] == 3 and short["map_objective"] > out["map_objective"]
 
 
 @pytest.mark.slow

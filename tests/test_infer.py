@@ -756,6 +756,10 @@ def test_inference_with_the_seen_cells_follows_the_same_path(handshake_model, ha
         monkeypatch.setattr(mod, "seen_predictor", lambda P, fixed, i, d: P)
     want = inf.infer_emotion(handshake_model, trial, **kw)
     assert got.info["map_iterations"] == want.info["map_iterations"]
+    # each level projection's iterations, none past max_iter
+    assert got.info["level_iterations"] == want.info["level_iterations"]
+    assert len(got.info["level_iterations"]) == len(handshake_model.levels["emotion"])
+    assert all(1 <= n <= 20 for n in got.info["level_iterations"])
     np.testing.assert_allclose(got.info["level_objectives"], want.info["level_objectives"],
                                rtol=0, atol=0.1)
     np.testing.assert_allclose(got.info["level_log_evidence"], want.info["level_log_evidence"],

@@ -46,7 +46,7 @@ from bayesmotion.data.files import atomic_write_text
 from bayesmotion.datasets.loaders import load_data
 from bayesmotion.emotion.batch import infer_many
 from bayesmotion.emotion.evidence import calibrate_evidence
-from bayesmotion.emotion.infer import infer_emotion
+from bayesmotion.emotion.infer import PROJECTION_ITER, infer_emotion
 from bayesmotion.emotion.ood import OutOfDistributionWarning
 from bayesmotion.emotion.projection import START_JITTER
 from bayesmotion.errors import BayesmotionError
@@ -192,6 +192,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="with 'vertices': start each level's projection in two stages (X* by "
                         "the bottom layer alone, then I* with X* held) instead of at the "
                         "nearest training frames' latents")
+    i.add_argument("--max-iter", type=int, default=PROJECTION_ITER, metavar="N",
+                   help=f"L-BFGS iterations per projection at most (default "
+                        f"{PROJECTION_ITER}); a projection stops earlier where it converges")
     i.add_argument("--workers", type=int, default=2,
                    help="with a folder: processes of the local Dask cluster (default 2)")
     i.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -221,6 +224,8 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--staged-start", action="store_true",
                    help="every inference's level projections start in two stages (see "
                         "'infer')")
+    e.add_argument("--max-iter", type=int, default=PROJECTION_ITER, metavar="N",
+                   help="L-BFGS iterations per projection of every inference (see 'infer')")
     e.add_argument("--json", default=None, help="write the result to this JSON file")
     v = add("view", "an interactive 3-D viewer page of motion files")
     v.add_argument("files", nargs="+",
@@ -385,6 +390,7 @@ def _cmd_view(a):
 
 def _cmd_infer(a):
     validate.seed(a.seed, "--seed")
+    validate.integer(a.max_iter, "--max-iter", low=1)
     validate.check_projection_starts(a.emotion_starts, a.level_starts, a.start_jitter,
                                      "--level-starts", "--start-jitter")
     if len(a.clips) == 1 and Path(a.clips[0]).is_dir():
@@ -397,7 +403,8 @@ def _cmd_infer(a):
         ep = infer_emotion(m, a.clips if len(a.clips) > 1 else a.clips[0], couple=a.couple,
                            seed=a.seed, likelihood_power=a.likelihood_power,
                            emotion_starts=a.emotion_starts, level_starts=a.level_starts,
-                           start_jitter=a.start_jitter, staged_start=a.staged_start)
+                           start_jitter=a.start_jitter, staged_start=a.staged_start,
+                           max_iter=a.max_iter)
     for w in caught:  # the flag is part of the answer: one line on stderr, and in the JSON
         if issubclass(w.category, OutOfDistributionWarning):
             print(f"warning: {w.message}", file=sys.stderr)
@@ -414,6 +421,7 @@ def _cmd_infer(a):
                           "level_starts": ep.info["level_starts"],
                           "start_jitter": ep.info["start_jitter"],
                           "staged_start": ep.info["staged_start"],
+                          "max_iter": a.max_iter,
                           "map_objective": ep.info["map_objective"],
                           "out_of_distribution": ep.out_of_distribution,
                           "ood_score": ep.info["ood"]["score"],
@@ -433,7 +441,8 @@ def _infer_folder(a):
     rows = infer_many(a.model, folder, table, workers=a.workers, scheduler=a.scheduler,
                       seed=a.seed, couple=a.couple, likelihood_power=a.likelihood_power,
                       emotion_starts=a.emotion_starts, level_starts=a.level_starts,
-                      start_jitter=a.start_jitter, staged_start=a.staged_start)
+                      start_jitter=a.start_jitter, staged_start=a.staged_start,
+                      max_iter=a.max_iter)
     errors = [r for r in rows if r["error"]]
     flagged = sum(str(r["out_of_distribution"]) == "True" for r in rows)
     print(f"wrote {table}: {len(rows)} clips, {len(errors)} failed, {flagged} out of "
@@ -474,6 +483,7 @@ def _check_fits(m, ds, model_path, data) -> None:
 
 def _cmd_evaluate(a):
     validate.integer(a.refit_iter, "--refit-iter", low=1)
+    validate.integer(a.max_iter, "--max-iter", low=1)
     validate.check_projection_starts(a.emotion_starts, a.level_starts, a.start_jitter,
                                      "--level-starts", "--start-jitter")
     if a.json is not None:
@@ -496,7 +506,8 @@ def _cmd_evaluate(a):
                         infer_kwargs={"emotion_starts": a.emotion_starts,
                                       "level_starts": a.level_starts,
                                       "start_jitter": a.start_jitter,
-                                      "staged_start": a.staged_start})
+                                      "staged_start": a.staged_start,
+                                      "max_iter": a.max_iter})
     print(format_confusion(res))
     hpd = lambda r: "" if r.get("hpd_coverage") is None else \
         f"highest-density region {r['hpd_coverage']:.2f}, "

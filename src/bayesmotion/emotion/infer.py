@@ -105,6 +105,9 @@ def _style_logp(x, E, conc, power, int_factors, dyn_factors, free):
 
 
 _STYLE_STATIC = ("int_factors", "dyn_factors", "free")
+# infer_emotion's default L-BFGS iterations per projection (its max_iter docstring gives the
+# measurements behind it)
+PROJECTION_ITER = 400
 
 
 @partial(jax.jit, static_argnames=_STYLE_STATIC)
@@ -170,8 +173,8 @@ def _style_setup(model, given: dict, prior):
 
 def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=None,
                   method: str = "ensemble", seed: int = 0, n_walkers: int = 64, n_steps: int = 150,
-                  n_draws: int = 4, max_iter: int = 400, latent_uncertainty: bool = True,
-                  likelihood_power: float = 1.0,
+                  n_draws: int = 4, max_iter: int = PROJECTION_ITER,
+                  latent_uncertainty: bool = True, likelihood_power: float = 1.0,
                   emotion_starts: str = "vertices", level_starts: int = 1,
                   start_jitter: float = START_JITTER,
                   effective_frames: float | None = None,
