@@ -61,6 +61,7 @@ BENCHMARKS = [
     "sparse_scaling",
     "projection_starts",
     "projection_budget",
+    "sparse_inference",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 
