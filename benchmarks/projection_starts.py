@@ -65,19 +65,30 @@ def level_answers(log_ev: np.ndarray, truth: np.ndarray) -> dict:
             "confident_wrong": cal["confident_wrong"], "probabilities": probs.tolist()}
 
 
-def walks_model(cfg: dict, root: Path):
+def walks_data(cfg: dict, root: Path):
     """The walks of ``cfg`` (contents, fps, cropped to model_frames) as a dataset with the
-    emotion factor, the benchmarks' one-actor affective-pose spec, and its fit on all of them
-    (``cfg["max_iter"]`` iterations): what each fold's refit starts from."""
+    emotion factor."""
     from bayesmotion.data.motion import MotionDataset
     from bayesmotion.datasets.bandai import load_bandai
-    from bayesmotion.model.spec import HGPDM
 
     data = load_bandai(root, content=cfg["contents"], fps=cfg["fps"])
-    clips = MotionDataset(tuple(t.select(slice(0, cfg["model_frames"])) for t in data),
-                          {"emotion": data.levels["emotion"]}, name="Bandai walks")
-    spec = HGPDM(latent_dim=6, interaction_dim=3, interaction_factors=("emotion",),
-                 dynamics_factors=("emotion",), canonical_side=True, pose_space="affective")
+    return MotionDataset(tuple(t.select(slice(0, cfg["model_frames"])) for t in data),
+                         {"emotion": data.levels["emotion"]}, name="Bandai walks")
+
+
+def walks_spec(inducing: int | None = None):
+    """The benchmarks' one-actor affective-pose spec (exact, or sparse with ``inducing``)."""
+    from bayesmotion.model.spec import HGPDM
+
+    return HGPDM(latent_dim=6, interaction_dim=3, interaction_factors=("emotion",),
+                 dynamics_factors=("emotion",), canonical_side=True, pose_space="affective",
+                 inducing=inducing)
+
+
+def walks_model(cfg: dict, root: Path):
+    """:func:`walks_data`, :func:`walks_spec` and its fit on all the walks
+    (``cfg["max_iter"]`` iterations): what each fold's refit starts from."""
+    clips, spec = walks_data(cfg, root), walks_spec()
     full = spec.fit(clips, max_iter=cfg["max_iter"], progress=False)
     return clips, spec, full
 

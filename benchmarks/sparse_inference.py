@@ -33,7 +33,7 @@ if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
 from _common import BANDAI_ROOT, bandai_present, headline  # noqa: E402
-from projection_starts import WALKS, level_answers  # noqa: E402
+from projection_starts import WALKS, level_answers, walks_data, walks_spec  # noqa: E402
 
 FULL = {"contents": WALKS, "fps": 15.0, "model_frames": 60, "max_iter": 300, "refit_iter": 100,
         "n_steps": 60, "models": (0, 100, 200)}
@@ -47,12 +47,7 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
     base = {"settings": {**cfg, "models": list(cfg["models"])}}
     if not bandai_present(root):
         return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
-    from bayesmotion.data.motion import MotionDataset
-    from bayesmotion.datasets.bandai import load_bandai
-
-    data = load_bandai(root, content=cfg["contents"], fps=cfg["fps"])
-    clips = MotionDataset(tuple(t.select(slice(0, cfg["model_frames"])) for t in data),
-                          {"emotion": data.levels["emotion"]}, name="Bandai walks")
+    clips = walks_data(cfg, root)
     models = [_one_model(clips, cfg, m) for m in cfg["models"]]
     return {**base, **summarize(models, list(clips.levels["emotion"]))}
 
@@ -62,11 +57,8 @@ def _one_model(clips, cfg: dict, inducing: int) -> dict:
     from bayesmotion.emotion.infer import infer_emotion
     from bayesmotion.emotion.ood import OutOfDistributionWarning
     from bayesmotion.evaluation.evaluate import _fold_init
-    from bayesmotion.model.spec import HGPDM
 
-    spec = HGPDM(latent_dim=6, interaction_dim=3, interaction_factors=("emotion",),
-                 dynamics_factors=("emotion",), canonical_side=True, pose_space="affective",
-                 inducing=inducing or None)
+    spec = walks_spec(inducing or None)
     t0 = time.perf_counter()
     full = spec.fit(clips, max_iter=cfg["max_iter"], progress=False)
     fit_s = time.perf_counter() - t0
