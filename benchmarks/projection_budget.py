@@ -31,7 +31,7 @@ if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
 from _common import BANDAI_ROOT, bandai_present, headline  # noqa: E402
-from projection_starts import WALKS, level_answers, walks_model  # noqa: E402
+from projection_starts import WALKS, level_answers, walk_folds, walks_model  # noqa: E402
 
 FULL = {"contents": WALKS, "fps": 15.0, "model_frames": 60, "max_iter": 300, "refit_iter": 100,
         "budgets": (50, 100, 200, 400, 1000), "n_steps": 60}
@@ -42,7 +42,6 @@ QUICK = {"contents": WALKS[2:], "fps": 7.5, "model_frames": 20, "max_iter": 30,
 def run(quick: bool, root: str | Path | None = None) -> dict:
     from bayesmotion.emotion.infer import infer_emotion
     from bayesmotion.emotion.ood import OutOfDistributionWarning
-    from bayesmotion.evaluation.evaluate import _fold_init
 
     cfg = dict(QUICK if quick else FULL)
     root = Path(root) if root is not None else BANDAI_ROOT
@@ -51,10 +50,7 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
         return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
     clips, spec, full = walks_model(cfg, root)
     rows = []
-    for i, (train, held) in enumerate(clips.leave_one_out()):
-        keep = [r for r in range(len(clips)) if r != i]
-        fold = spec.fit(train, max_iter=cfg["refit_iter"], progress=False,
-                        init=_fold_init(full, keep))
+    for i, held, fold in walk_folds(clips, spec, full, cfg["refit_iter"]):
         per = {}
         for k in cfg["budgets"]:
             t0 = time.perf_counter()

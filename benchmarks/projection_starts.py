@@ -93,10 +93,20 @@ def walks_model(cfg: dict, root: Path):
     return clips, spec, full
 
 
+def walk_folds(clips, spec, full, refit_iter: int):
+    """Each walk held out in turn: (i, held-out trial, the fold model: ``spec`` refitted on
+    the others for ``refit_iter`` iterations, warm-started from ``full``)."""
+    from bayesmotion.evaluation.evaluate import _fold_init
+
+    for i, (train, held) in enumerate(clips.leave_one_out()):
+        keep = [r for r in range(len(clips)) if r != i]
+        yield i, held, spec.fit(train, max_iter=refit_iter, progress=False,
+                                init=_fold_init(full, keep))
+
+
 def run(quick: bool, root: str | Path | None = None) -> dict:
     from bayesmotion.emotion.infer import infer_emotion
     from bayesmotion.emotion.ood import OutOfDistributionWarning
-    from bayesmotion.evaluation.evaluate import _fold_init
 
     cfg = dict(QUICK if quick else FULL)
     root = Path(root) if root is not None else BANDAI_ROOT
@@ -106,10 +116,7 @@ def run(quick: bool, root: str | Path | None = None) -> dict:
     clips, spec, full = walks_model(cfg, root)
     levels = list(clips.levels["emotion"])
     rows = []
-    for i, (train, held) in enumerate(clips.leave_one_out()):
-        keep = [r for r in range(len(clips)) if r != i]
-        fold = spec.fit(train, max_iter=cfg["refit_iter"], progress=False,
-                        init=_fold_init(full, keep))
+    for i, held, fold in walk_folds(clips, spec, full, cfg["refit_iter"]):
         t0 = time.perf_counter()
         kw = dict(n_steps=cfg["n_steps"], seed=i, max_iter=cfg["projection_iter"],
                   latent_uncertainty=False, effective_frames=np.inf)

@@ -33,7 +33,13 @@ if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
 from _common import BANDAI_ROOT, bandai_present, headline  # noqa: E402
-from projection_starts import WALKS, level_answers, walks_data, walks_spec  # noqa: E402
+from projection_starts import (  # noqa: E402
+    WALKS,
+    level_answers,
+    walk_folds,
+    walks_data,
+    walks_spec,
+)
 
 FULL = {"contents": WALKS, "fps": 15.0, "model_frames": 60, "max_iter": 300, "refit_iter": 100,
         "n_steps": 60, "models": (0, 100, 200)}
@@ -56,17 +62,13 @@ def _one_model(clips, cfg: dict, inducing: int) -> dict:
     """Every fold of one model (0: exact): its fits, then each held-out walk's inference."""
     from bayesmotion.emotion.infer import infer_emotion
     from bayesmotion.emotion.ood import OutOfDistributionWarning
-    from bayesmotion.evaluation.evaluate import _fold_init
 
     spec = walks_spec(inducing or None)
     t0 = time.perf_counter()
     full = spec.fit(clips, max_iter=cfg["max_iter"], progress=False)
     fit_s = time.perf_counter() - t0
     folds = []
-    for i, (train, held) in enumerate(clips.leave_one_out()):
-        keep = [r for r in range(len(clips)) if r != i]
-        fold = spec.fit(train, max_iter=cfg["refit_iter"], progress=False,
-                        init=_fold_init(full, keep))
+    for i, held, fold in walk_folds(clips, spec, full, cfg["refit_iter"]):
         t0 = time.perf_counter()
         fold.predictor()  # conditioned once per model, cached
         cond_s = time.perf_counter() - t0
