@@ -62,6 +62,7 @@ BENCHMARKS = [
     "projection_starts",
     "projection_budget",
     "sparse_inference",
+    "compile_cache",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 

@@ -8,6 +8,10 @@ import pytest
 # Two pytest-xdist workers share one machine: on a GPU, JAX must not grab 75% of its memory
 # in each of them.
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+# The command line turns JAX's persistent compilation cache on (bayesmotion.compile_cache): the
+# tests, which call it in-process and in subprocesses, keep it off unless a test turns it on in
+# a folder of its own, so they neither read nor fill the user's cache.
+os.environ["BAYESMOTION_COMPILE_CACHE"] = "off"
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CMU_DIR = SHARED / "cmu-handshake"

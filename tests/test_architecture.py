@@ -15,7 +15,7 @@ PKG = Path(__file__).resolve().parents[1] / "src" / "bayesmotion"
 
 #: bottom to top; modules on one rung may import each other (within their package), never upward
 LAYERS = (
-    ("errors", "_config", "_version", "shapes", "validate"),
+    ("errors", "_config", "_version", "shapes", "validate", "compile_cache"),
     ("data",),
     ("datasets",),
     ("features",),

@@ -10,6 +10,7 @@ variance (:meth:`FittedHGPDM.generate`), and emotion inference on observed motio
 from bayesmotion import _config, datasets  # noqa: F401  (_config: float64 before any array)
 from bayesmotion._version import __version__
 from bayesmotion.codecs.pose import PoseCodec
+from bayesmotion.compile_cache import enable_compilation_cache
 from bayesmotion.data import (
     Motion,
     MotionDataset,
@@ -43,7 +44,8 @@ __all__ = [
     "EMOTION_PRESETS", "HGPDM", "__version__", "BVHError", "BayesmotionError", "EmotionPosterior",
     "EmotionStyle", "FittedHGPDM", "ModelFileError", "Motion", "MotionDataset", "PoseCodec",
     "Posterior", "Priors", "Rollout", "Skeleton", "SkeletonMismatchError", "Transition", "Trial",
-    "apply_emotion", "calibrate_evidence", "canonical_side", "datasets", "forward_kinematics",
+    "apply_emotion", "calibrate_evidence", "canonical_side", "datasets", "enable_compilation_cache",
+    "forward_kinematics",
     "infer_emotion", "infer_many", "infer_online", "load", "load_rollout", "mirror", "pin_feet",
     "reframe", "rest_frames",
     "load_bandai", "load_cmu_handshake", "load_handshakes", "parse_bvh", "read_bvh",

@@ -18,6 +18,10 @@ Commands:
 DATA is builtin:handshakes, a folder of BVH files with labels.csv (file, emotion, couple), or a
 Bandai Namco dataset root.
 
+Compiled programs go to JAX's persistent compilation cache (bayesmotion.compile_cache), so a
+later command with the same programs reads them instead of compiling them again;
+--no-compile-cache (before the command) or BAYESMOTION_COMPILE_CACHE=off turns that off.
+
 Exit codes: 0 success; 2 bad input (missing file, wrong format, unknown emotion, incompatible
 model, a number out of range, an output path that cannot be written, a request larger than the
 memory available), with one line on stderr and a hint; 1 unexpected error (a bug: rerun with
@@ -42,6 +46,7 @@ from pathlib import Path
 
 from bayesmotion import validate
 from bayesmotion.app.demo import run_demo
+from bayesmotion.compile_cache import enable_compilation_cache
 from bayesmotion.data.files import atomic_write_text
 from bayesmotion.datasets.loaders import load_data
 from bayesmotion.emotion.batch import infer_many
@@ -84,6 +89,10 @@ def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="bayesmotion", description=__doc__,
                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.add_argument("--no-compile-cache", action="store_true",
+                   help="compile every program afresh instead of reading and writing JAX's "
+                        "persistent compilation cache (default: in the user's cache folder, "
+                        "or BAYESMOTION_COMPILE_CACHE; 'off' there turns it off too)")
     sub = p.add_subparsers(dest="command", required=True)
 
     def add(name, help):
@@ -598,6 +607,8 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         with validate.memory_checks(not args.no_memory_check), _tidy_warnings(args.debug):
+            if not args.no_compile_cache:
+                enable_compilation_cache()
             globals()[f"_cmd_{args.command}"](args)
         return 0
     except KeyboardInterrupt:

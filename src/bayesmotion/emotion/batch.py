@@ -8,7 +8,9 @@ address or a ``Client``. The model travels to
 each worker once, as the bytes of its model file (the checked, pickle-free format of
 :mod:`bayesmotion.model.archive`), and each worker loads it once; a task then carries only its
 clip's file paths, which every worker must be able to read (a shared file system on a
-multi-machine cluster).
+multi-machine cluster). When this process has the compilation cache on
+(:mod:`bayesmotion.compile_cache`; the command line does), the workers of a ``LocalCluster``
+started here use the same cache folder, so each reads the programs another compiled.
 
 Results stream to a CSV table as they finish, one row per clip, flushed and synced to disk
 row by row, so an interrupted run leaves every finished row (and at most one partial line, which
@@ -41,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from bayesmotion._config import release_compiled_programs
+from bayesmotion.compile_cache import cache_stats, enable_compilation_cache
 from bayesmotion.emotion.projection import START_JITTER
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.distributed import check_workers, dask_client, model_bytes, worker_model
@@ -141,7 +144,10 @@ def infer_row(model, name: str, paths: Sequence[str], kwargs: dict) -> dict:
     return row
 
 
-def _task(data: bytes, name: str, paths: tuple[str, ...], kwargs: dict) -> dict:
+def _task(data: bytes, name: str, paths: tuple[str, ...], kwargs: dict,
+          cache_dir: str | None = None) -> dict:
+    if cache_dir is not None:  # the caller's compilation cache, on this machine's workers
+        enable_compilation_cache(cache_dir)
     return infer_row(worker_model(data), name, paths, kwargs)
 
 
@@ -232,10 +238,14 @@ def infer_many(model, clips, out=None, *, client=None, workers: int = 2,
     todo = {c: p for c, p in named.items() if c not in done}
     rows = dict(done)
     if todo:
+        client_given = client
         with dask_client(client, scheduler, workers, "infer_many") as client:
             shared = client.scatter(data, broadcast=True, hash=False)
             run = uuid.uuid4().hex[:8]
-            futures = {client.submit(_task, shared, c, p, infer_kwargs, pure=False,
+            # workers started here share this process's compilation cache, if it is on
+            local = client_given is None and scheduler is None
+            cache_dir = cache_stats()["directory"] if local else None
+            futures = {client.submit(_task, shared, c, p, infer_kwargs, cache_dir, pure=False,
                                      key=f"bayesmotion-infer-{run}-{i}"): c
                        for i, (c, p) in enumerate(todo.items())}
             bar = tqdm(total=len(named), initial=len(done), desc="infer_many (clips)",
