@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from bayesmotion import compile_cache
-from bayesmotion.errors import BayesmotionError
 from bayesmotion.app import cli
+from bayesmotion.errors import BayesmotionError
 
 # a jitted function, enabled cache, a second enable elsewhere; prints the result and the stats
 PROGRAM = r"""

@@ -50,6 +50,7 @@ training recording gets the prior, not a confident label.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -109,15 +110,29 @@ def held_out_stats(fit: LayerFit | SparseLayer, groups: np.ndarray
         rows = np.flatnonzero(groups == g)
         if isinstance(fit, SparseLayer):
             C, KinvY = held_out_blocks(fit.parts, fit.outputs, rows)
+            z, v = _held_out_rows(C, KinvY)
         else:
-            E = jnp.zeros((M, rows.size)).at[rows, np.arange(rows.size)].set(1.0)
-            V = whiten(fit, E)
-            C, KinvY = V.T @ V, fit.A[rows]  # [K^-1]_bb, [K^-1 Y]_b
-        Cinv = jnp.linalg.inv(C)
-        r = Cinv @ KinvY
-        z2[rows] = np.asarray(jnp.mean(r**2, axis=1) / jnp.diag(Cinv))
-        var[rows] = np.asarray(jnp.diag(Cinv))
+            z, v = _dense_held_out_rows(fit, jnp.asarray(rows))
+        z2[rows], var[rows] = np.asarray(z), np.asarray(v)
     return z2, 0.5 * (z2 + np.log(2 * np.pi * var))
+
+
+@jax.jit
+def _held_out_rows(C, KinvY):
+    """(z2, predictive variance) of the held-out rows b from C = [K^-1]_bb and
+    [K^-1 Y]_b: residual C^-1 [K^-1 Y]_b, variance diag(C^-1)."""
+    Cinv = jnp.linalg.inv(C)
+    r = Cinv @ KinvY
+    return jnp.mean(r**2, axis=1) / jnp.diag(Cinv), jnp.diag(Cinv)
+
+
+@jax.jit
+def _dense_held_out_rows(fit: LayerFit, rows):
+    """:func:`_held_out_rows` of an exact layer's ``rows``, [K^-1]_bb from its whitening: one
+    compiled program per group size (a new process pays for each program it compiles)."""
+    E = jnp.zeros((fit.A.shape[0], rows.size)).at[rows, jnp.arange(rows.size)].set(1.0)
+    V = whiten(fit, E)
+    return _held_out_rows(V.T @ V, fit.A[rows])  # [K^-1]_bb, [K^-1 Y]_b
 
 
 def _summary(z: np.ndarray) -> dict:
@@ -170,6 +185,14 @@ def clip_z2(P: Predictor, X, I, Ys, dyn_styles) -> dict[str, np.ndarray]:
         ``bottom`` and ``bottom_density``: (T,) averaged over actors; ``dynamics`` and
         ``dynamics_density``: (T - o,) for the frames with o lags.
     """
+    out = _clip_z2(P, jnp.asarray(X), jnp.asarray(I), tuple(jnp.asarray(Y) for Y in Ys),
+                   tuple(jnp.asarray(s) for s in dyn_styles))
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+@jax.jit
+def _clip_z2(P: Predictor, X, I, Ys, dyn_styles) -> dict:
+    """:func:`clip_z2` as one compiled program."""
     noise = noise_variances(P)
     z2, nlpd = [], []
     for a, Y in enumerate(Ys):
@@ -187,10 +210,9 @@ def clip_z2(P: Predictor, X, I, Ys, dyn_styles) -> dict[str, np.ndarray]:
     mu, var = predict_dynamics(P, lags, styles)
     v = var + noise["I"]
     dyn = jnp.mean((I[o:] - mu) ** 2, axis=1) / v
-    return {"bottom": np.asarray(jnp.mean(jnp.stack(z2), axis=0)),
-            "bottom_density": np.asarray(jnp.mean(jnp.stack(nlpd), axis=0)),
-            "dynamics": np.asarray(dyn),
-            "dynamics_density": np.asarray(0.5 * (dyn + jnp.log(2 * jnp.pi * v)))}
+    return {"bottom": jnp.mean(jnp.stack(z2), axis=0),
+            "bottom_density": jnp.mean(jnp.stack(nlpd), axis=0),
+            "dynamics": dyn, "dynamics_density": 0.5 * (dyn + jnp.log(2 * jnp.pi * v))}
 
 
 def assess(reference: dict, z2: dict[str, np.ndarray], recording: dict | None = None) -> dict:

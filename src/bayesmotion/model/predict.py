@@ -16,6 +16,7 @@ for the mean and O(M^2) for the variance.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -331,14 +332,14 @@ def restrict_to_styles(P: Predictor, dyn_style_new, int_style_new) -> Predictor:
     """
     out = {}
     if P.dyn.rows is not None:
-        keep = _seen_cells(P.dyn, P.dyn_style, dyn_style_new)
-        fit, idx = _keep_cells(P.dyn, keep)
-        out.update(dyn=fit, dyn_lags=P.dyn_lags[:, idx],
-                   dyn_style=tuple(s[idx] for s in P.dyn_style))
+        keep, idx, rows = _kept_rows(P.dyn, _seen_cells(P.dyn, P.dyn_style, dyn_style_new))
+        fit, lags, styles = _take_cells(P.dyn, keep, idx, rows, P.dyn_lags, P.dyn_style,
+                                        axis=1)
+        out.update(dyn=fit, dyn_lags=lags, dyn_style=styles)
     if P.inter.rows is not None:
-        keep = _seen_cells(P.inter, P.int_style, int_style_new)
-        fit, idx = _keep_cells(P.inter, keep)
-        out.update(inter=fit, I=P.I[idx], int_style=tuple(s[idx] for s in P.int_style))
+        keep, idx, rows = _kept_rows(P.inter, _seen_cells(P.inter, P.int_style, int_style_new))
+        fit, I, styles = _take_cells(P.inter, keep, idx, rows, P.I, P.int_style)
+        out.update(inter=fit, I=I, int_style=styles)
     return P._replace(**out)
 
 
@@ -352,13 +353,23 @@ def _seen_cells(fit: LayerFit, train_style, new_style) -> np.ndarray:
     return keep if keep.size else np.arange(1)  # all zero: one cell, contributing 0
 
 
-def _keep_cells(fit: LayerFit, keep: np.ndarray):
-    """(LayerFit of the kept cells over their own rows, those rows' indices in the layer)."""
+def _kept_rows(fit: LayerFit, keep: np.ndarray):
+    """(kept cells, their rows' indices in the layer, the kept layer's own rows) on the host:
+    the kept cells' rows renumbered 0, 1, ... in the same (cells, B) layout."""
     rows = np.asarray(fit.rows)[keep]
     idx = rows.ravel()
+    return keep, idx, np.arange(idx.size).reshape(rows.shape)
+
+
+@partial(jax.jit, static_argnames=("axis",))
+def _take_cells(fit: LayerFit, keep, idx, rows, inputs, styles, axis: int = 0):
+    """(LayerFit of the kept cells over their own rows, ``inputs`` at those rows along
+    ``axis``, each style at those rows): one compiled program per shape, not one per
+    gather (a new process pays for each program it compiles)."""
     mask = fit.mask[keep]
     A = fit.A[idx] * mask.reshape(-1)[:, None]  # padding rows repeat a real row: weight 0
-    return LayerFit(fit.Linv[keep], A, jnp.arange(idx.size).reshape(rows.shape), mask), idx
+    return (LayerFit(fit.Linv[keep], A, rows, mask), jnp.take(inputs, idx, axis=axis),
+            tuple(s[idx] for s in styles))
 
 
 def _mean_var(kx, kxx, fit: LayerFit):
