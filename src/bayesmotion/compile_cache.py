@@ -1,7 +1,7 @@
 """JAX's persistent compilation cache, for processes that start often (the command line, scripts).
 
 Every new process compiles each program it runs. ``infer_emotion``'s first call on a model
-compiles about 330 programs, and that, not the arithmetic, is most of a one-clip
+compiles about 100 programs, and that, not the arithmetic, is most of a one-clip
 ``bayesmotion infer``. With the cache on, a compiled program is written to disk and a later
 process with the same program reads it back instead of compiling it. A program is the same
 when its code, shapes, JAX version and device are: a model's numbers are arguments, not part of
