@@ -5,7 +5,7 @@
 The model is infer_speed's: ``HGPDM()`` fitted by MAP on the built-in handshakes at 10 fps
 without the four held-out trials, saved to a model file. Each row is a fresh Python process,
 run three ways: the cache off, the cache on in an empty folder (it compiles and writes every
-program), and the cache on in that folder again (it reads them). Two kinds of process:
+program), and the cache on in that folder again (it reads them). Three kinds of process:
 
 * ``library``: imports bayesmotion, loads the model and calls ``infer_emotion`` (defaults) on
   a held-out trial, then on another: the first call's seconds include compiling (or reading)
@@ -14,13 +14,17 @@ program), and the cache on in that folder again (it reads them). Two kinds of pr
 * ``cli``: ``python -m bayesmotion infer model.npz actor0.bvh actor1.bvh --couple c1 --json``
   on a held-out trial written as BVH, timed whole (start-up, load, inference, output), as a
   user's shell sees it; its folder is a separate one, so its cold row starts empty too.
+* ``generate``: ``python -m bayesmotion generate model.npz --emotion happy --frames 60
+  --samples 4 --out DIR``, timed whole, with a folder of its own.
 
-The answers of the three runs must agree (their labels are recorded). The cache's size on
+The answers of the three runs must agree: the same labels, and byte-identical BVH files from
+``generate``. The cache's size on
 disk is reported after the cold run.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import subprocess
@@ -83,6 +87,16 @@ def _library(model: Path, fps: float, cache: Path | None) -> dict:
             "process_seconds": time.perf_counter() - t}
 
 
+def _generate(model: Path, out: Path, cache: Path | None) -> dict:
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "bayesmotion", "generate", str(model), "--emotion",
+                    "happy", "--frames", "60", "--samples", "4", "--out", str(out)],
+                   env=_env(cache), capture_output=True, text=True, check=True)
+    bvh = sorted(out.glob("*.bvh"))
+    return {"process_seconds": time.perf_counter() - t, "bvh_files": [p.name for p in bvh],
+            "bvh_sha256": hashlib.sha256(b"".join(p.read_bytes() for p in bvh)).hexdigest()}
+
+
 def _cli(model: Path, files: list[Path], couple: str, cache: Path | None) -> dict:
     t = time.perf_counter()
     r = subprocess.run([sys.executable, "-m", "bayesmotion", "infer", str(model),
@@ -109,19 +123,25 @@ def run(quick: bool) -> dict:
         for a, motion in enumerate(trial.actors):
             files.append(tmp / f"clip_actor{a}.bvh")
             write_bvh(motion, files[-1])
-        out = {"library": {}, "cli": {}}
-        for kind in ("library", "cli"):
+        out = {"library": {}, "cli": {}, "generate": {}}
+        for kind in out:
             cache = tmp / f"cache-{kind}"
             for how in RUNS:
                 where = None if how == "off" else cache
-                out[kind][how] = (_library(model, cfg["fps"], where) if kind == "library"
-                                  else _cli(model, files, trial.labels["couple"], where))
+                if kind == "library":
+                    out[kind][how] = _library(model, cfg["fps"], where)
+                elif kind == "cli":
+                    out[kind][how] = _cli(model, files, trial.labels["couple"], where)
+                else:
+                    out[kind][how] = _generate(model, tmp / f"gen-{how}", where)
                 if how == "cold":
                     n, mb = _folder_mb(cache)
                     out[kind]["cache_files"], out[kind]["cache_mb"] = n, mb
-    lib, cli = out["library"], out["cli"]
+    lib, cli, gen = out["library"], out["cli"], out["generate"]
     agree = (len({lib[h]["first_label"] for h in RUNS}) == 1
-             and len({cli[h]["label"] for h in RUNS}) == 1)
+             and len({cli[h]["label"] for h in RUNS}) == 1
+             and len({gen[h]["bvh_sha256"] for h in RUNS}) == 1
+             and bool(gen["off"]["bvh_files"]))
     rows = [
         headline("bayesmotion infer, one clip, whole process: cache off",
                  cli["off"]["process_seconds"], "s"),
@@ -136,6 +156,12 @@ def run(quick: bool) -> dict:
                  lib["warm"]["first_call_seconds"], "s",
                  note=f"{lib['warm']['hits']} programs read, {lib['warm']['misses']} compiled; "
                       f"second call {lib['warm']['second_call_seconds']:.2f} s"),
+        headline("bayesmotion generate (60 frames, 4 samples), whole process: cache off",
+                 gen["off"]["process_seconds"], "s"),
+        headline("bayesmotion generate (60 frames, 4 samples), whole process: cache warm",
+                 gen["warm"]["process_seconds"], "s",
+                 note=f"cold {gen['cold']['process_seconds']:.1f} s; cache "
+                      f"{gen['cache_files']} files, {gen['cache_mb']:.1f} MB"),
         headline("same answers with and without the cache", agree, "", "True", agree),
     ]
     return {"settings": {**cfg, "n_train_trials": len(train), "n_frames": held[0].n_frames},
