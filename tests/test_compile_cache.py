@@ -96,3 +96,15 @@ def test_the_command_line_turns_it_on_unless_told_not_to(flag, calls, monkeypatc
                             str(tmp_path / "v.html")])
     assert code == 2 and "missing.bvh" in capsys.readouterr().err
     assert len(seen) == calls
+
+
+def test_infer_many_workers_turn_on_the_callers_cache(monkeypatch):
+    from bayesmotion.emotion import batch
+
+    seen = []
+    monkeypatch.setattr(batch, "enable_compilation_cache", seen.append)
+    monkeypatch.setattr(batch, "worker_model", lambda data: data)
+    monkeypatch.setattr(batch, "infer_row", lambda model, name, paths, kw: {"clip": name})
+    assert batch._task(b"model", "c", ("a.bvh",), {}, "/cache/dir") == {"clip": "c"}
+    assert batch._task(b"model", "d", ("b.bvh",), {}) == {"clip": "d"}
+    assert seen == ["/cache/dir"]  # a task without a folder leaves the worker's setting alone
