@@ -106,6 +106,14 @@ def _cli(model: Path, files: list[Path], couple: str, cache: Path | None) -> dic
             "label": json.loads(r.stdout)["label"]}
 
 
+def _process_rows(what: str, runs: dict) -> list:
+    """Headline rows of a whole-process timing: cache off, and warm with the cold run beside."""
+    return [headline(f"{what}, whole process: cache off", runs["off"]["process_seconds"], "s"),
+            headline(f"{what}, whole process: cache warm", runs["warm"]["process_seconds"], "s",
+                     note=f"cold (empty cache, writing it) {runs['cold']['process_seconds']:.1f}"
+                          f" s; cache {runs['cache_files']} files, {runs['cache_mb']:.1f} MB")]
+
+
 def run(quick: bool) -> dict:
     from bayesmotion.app.demo import _split
     from bayesmotion.data.bvh import write_bvh
@@ -143,12 +151,7 @@ def run(quick: bool) -> dict:
              and len({gen[h]["bvh_sha256"] for h in RUNS}) == 1
              and bool(gen["off"]["bvh_files"]))
     rows = [
-        headline("bayesmotion infer, one clip, whole process: cache off",
-                 cli["off"]["process_seconds"], "s"),
-        headline("bayesmotion infer, one clip, whole process: cache warm",
-                 cli["warm"]["process_seconds"], "s",
-                 note=f"cold (empty cache, writing it) {cli['cold']['process_seconds']:.1f} s; "
-                      f"cache {cli['cache_files']} files, {cli['cache_mb']:.1f} MB"),
+        *_process_rows("bayesmotion infer, one clip", cli),
         headline("infer_emotion first call in a fresh process: cache off",
                  lib["off"]["first_call_seconds"], "s",
                  note=f"second call {lib['off']['second_call_seconds']:.2f} s"),
@@ -156,12 +159,7 @@ def run(quick: bool) -> dict:
                  lib["warm"]["first_call_seconds"], "s",
                  note=f"{lib['warm']['hits']} programs read, {lib['warm']['misses']} compiled; "
                       f"second call {lib['warm']['second_call_seconds']:.2f} s"),
-        headline("bayesmotion generate (60 frames, 4 samples), whole process: cache off",
-                 gen["off"]["process_seconds"], "s"),
-        headline("bayesmotion generate (60 frames, 4 samples), whole process: cache warm",
-                 gen["warm"]["process_seconds"], "s",
-                 note=f"cold {gen['cold']['process_seconds']:.1f} s; cache "
-                      f"{gen['cache_files']} files, {gen['cache_mb']:.1f} MB"),
+        *_process_rows("bayesmotion generate (60 frames, 4 samples)", gen),
         headline("same answers with and without the cache", agree, "", "True", agree),
     ]
     return {"settings": {**cfg, "n_train_trials": len(train), "n_frames": held[0].n_frames},

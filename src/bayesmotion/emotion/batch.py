@@ -10,7 +10,8 @@ each worker once, as the bytes of its model file (the checked, pickle-free forma
 clip's file paths, which every worker must be able to read (a shared file system on a
 multi-machine cluster). When this process has the compilation cache on
 (:mod:`bayesmotion.compile_cache`; the command line does), the workers of a ``LocalCluster``
-started here use the same cache folder, so each reads the programs another compiled.
+started here use the same cache folder, so the workers of a later run read the programs
+instead of compiling them.
 
 Results stream to a CSV table as they finish, one row per clip, flushed and synced to disk
 row by row, so an interrupted run leaves every finished row (and at most one partial line, which
@@ -238,13 +239,11 @@ def infer_many(model, clips, out=None, *, client=None, workers: int = 2,
     todo = {c: p for c, p in named.items() if c not in done}
     rows = dict(done)
     if todo:
-        client_given = client
+        # workers started here (not a given cluster's) use this process's compilation cache
+        cache_dir = cache_stats()["directory"] if client is None and scheduler is None else None
         with dask_client(client, scheduler, workers, "infer_many") as client:
             shared = client.scatter(data, broadcast=True, hash=False)
             run = uuid.uuid4().hex[:8]
-            # workers started here share this process's compilation cache, if it is on
-            local = client_given is None and scheduler is None
-            cache_dir = cache_stats()["directory"] if local else None
             futures = {client.submit(_task, shared, c, p, infer_kwargs, cache_dir, pure=False,
                                      key=f"bayesmotion-infer-{run}-{i}"): c
                        for i, (c, p) in enumerate(todo.items())}
