@@ -17,6 +17,7 @@ from bayesmotion.inference.chainfile import (
     h5_errors,
     open_h5,
 )
+from bayesmotion.inference.moves import StyleShear
 from bayesmotion.inference.posterior import format_seconds, posterior_from_chain
 from bayesmotion.inference.proposals import (
     adapt_steps,
@@ -26,6 +27,7 @@ from bayesmotion.inference.proposals import (
     mixture_proposal,
     move_stats,
     phase_stats,
+    sheared_modes,
 )
 from bayesmotion.inference.target import Target, in_halves, start_points
 
@@ -135,13 +137,17 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
     if independence:
         cov = target.laplace(centre)
         block = independence_block(target, cov)
-        modes = idle_factor_modes(target, centre, cov, block)
+        # the proposal lives where DE proposes: in the shear's coordinates, where there is one
+        shear = StyleShear.for_target(target)
+        modes = sheared_modes(idle_factor_modes(target, centre, cov, block), shear)
 
         def phase_moves(first: bool):
             if first:
                 return default_moves(target, hmc, mixture_proposal(block, modes))
-            z = be.get_chain()[n_adapt // 3:n_adapt][..., block].reshape(-1, block.size)
-            return default_moves(target, hmc, mixture_proposal(block, modes, z))
+            z = be.get_chain()[n_adapt // 3:n_adapt].reshape(-1, target.ndim)
+            if shear is not None:
+                z = np.asarray(shear.forward(z))
+            return default_moves(target, hmc, mixture_proposal(block, modes, z[:, block]))
 
         # (a resumed file's stored adaptation may be longer than this call's n_steps)
         phases = ([(min(n_adapt, n_steps), True), (n_steps, False)] if n_adapt

@@ -3,6 +3,7 @@ rotations, and the independence step whose proposal is a mixture over the poster
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -10,7 +11,9 @@ from bayesmotion.inference.moves import (
     EnsembleHMC,
     IndependenceMove,
     Sequence,
+    ShearedDE,
     StyleRotations,
+    StyleShear,
     style_slices,
 )
 from bayesmotion.model.params import simplex_to_style
@@ -98,6 +101,21 @@ def _weighted(modes):
     return modes
 
 
+def sheared_modes(modes: list[dict], shear) -> list[dict]:
+    """``modes`` (:func:`idle_factor_modes`) in the coordinates of ``shear`` (a
+    :class:`bayesmotion.inference.moves.StyleShear`, or None: unchanged): each centre mapped, each
+    Laplace covariance carried through the map's Jacobian at it."""
+    if shear is None:
+        return modes
+    one = lambda v: shear.forward(v[None])[0]  # noqa: E731
+    out = []
+    for m in modes:
+        J = np.asarray(jax.jacfwd(one)(jnp.asarray(m["x"], dtype=float)))
+        out.append({**m, "x": np.asarray(one(jnp.asarray(m["x"], dtype=float))),
+                    "cov": J @ np.asarray(m["cov"]) @ J.T})
+    return out
+
+
 def mixture_proposal(block, modes, z=None):
     """(block, means, covs, weights) of the independence move: each mode's Laplace
     approximation; with ``z`` (adaptation states, block coordinates), each mode's sample
@@ -120,9 +138,13 @@ def mixture_proposal(block, modes, z=None):
 
 
 def default_moves(target, hmc: bool = False, proposal=None):
-    """DE, each step followed by the style rotations when the target samples style vectors;
-    then, with ``proposal = (block, mean, cov[, weights])`` (a mixture when ``mean`` is 2-d),
-    an independence step on that block
+    """DE (proposing in :class:`bayesmotion.inference.moves.StyleShear`'s coordinates when the
+    target samples style vectors with the output scales they multiply,
+    :class:`bayesmotion.inference.moves.ShearedDE`), each step followed by the style rotations
+    when the target samples style vectors;
+    then, with ``proposal = (block, mean, cov[, weights])`` (a mixture when ``mean`` is 2-d;
+    in the shear's coordinates where there is one, :func:`sheared_modes`), an independence step
+    on that block
     (:class:`bayesmotion.inference.moves.IndependenceMove`); then
     (``hmc``) ensemble-preconditioned HMC steps (:class:`bayesmotion.inference.moves.EnsembleHMC`):
     one
@@ -134,7 +156,9 @@ def default_moves(target, hmc: bool = False, proposal=None):
     moves on that target)."""
     import emcee
 
-    moves = emcee.moves.DEMove()
+    shear = StyleShear.for_target(target)
+    # DE along the output scales' ridge with the style norms (ShearedDE), where there is one
+    moves = emcee.moves.DEMove() if shear is None else ShearedDE(shear)
     slices = style_slices(target.unravel, target.x0) if hasattr(target, "unravel") else {}
     if slices:  # cross the style vectors' rotation ridges without GP evaluations
         conc = target.model.log_posterior_fn.style_prior.concentration
@@ -145,7 +169,8 @@ def default_moves(target, hmc: bool = False, proposal=None):
         # the hyperparameters are nearly Gaussian, strongly correlated (DE crawls there: tau
         # ~300 steps at the demo size): an accepted independence proposal is a fresh draw
         block, mean, cov, *weights = proposal
-        extra = [IndependenceMove(block, mean, cov, weights=weights[0] if weights else None)]
+        extra = [IndependenceMove(block, mean, cov, weights=weights[0] if weights else None,
+                                  shear=shear)]
     if not (hmc and hasattr(target, "_logp")):
         return Sequence(moves, *extra) if extra else moves
     # the hyperparameters (and two-level styles) are nearly Gaussian but strongly correlated,

@@ -38,11 +38,16 @@ class IndependenceMove(emcee.moves.MHMove):
             (k, len(block), len(block)) one per component.
         df: degrees of freedom of the t (> 0); large values approach a Gaussian.
         weights: (k,) positive mixture weights (normalised here); default equal.
+        shear: a :class:`bayesmotion.inference.moves.StyleShear` (or anything with vmapped
+            ``forward`` and ``inverse`` maps of unit Jacobian): the block, ``mean`` and ``cov``
+            are then in its coordinates ``y = forward(x)``; a walker's ``y`` gets the new block
+            and maps back, and the ratio is the same (a unit Jacobian adds nothing). Default:
+            the sampled coordinates themselves.
 
     ``acceptance`` holds the fraction of accepted proposals so far.
     """
 
-    def __init__(self, block, mean, cov, df: float = 20.0, weights=None):
+    def __init__(self, block, mean, cov, df: float = 20.0, weights=None, shear=None):
         block = np.asarray(block, dtype=int).ravel()
         if not block.size:
             raise ValueError("IndependenceMove needs a non-empty block of coordinates")
@@ -71,6 +76,7 @@ class IndependenceMove(emcee.moves.MHMove):
         if not df > 0:
             raise ValueError(f"df must be > 0, got {df!r}")
         self.block = block
+        self.shear = shear
         self.means = means
         self.weights = w / w.sum()
         self.df = float(df)
@@ -116,6 +122,8 @@ class IndependenceMove(emcee.moves.MHMove):
 
     def _propose(self, coords, random):
         x = np.asarray(coords, dtype=float)
+        if self.shear is not None:
+            x = np.asarray(self.shear.forward(x), dtype=float)
         n, d = x.shape[0], self.block.size
         scale = np.sqrt(self.df / random.chisquare(self.df, size=n))
         comp = (np.zeros(n, dtype=int) if len(self.means) == 1
@@ -123,4 +131,7 @@ class IndependenceMove(emcee.moves.MHMove):
         new = x.copy()
         step = np.einsum("nij,nj->ni", self._chols[comp], random.randn(n, d))
         new[:, self.block] = self.means[comp] + scale[:, None] * step
-        return new, self.log_q(x[:, self.block]) - self.log_q(new[:, self.block])
+        log_ratio = self.log_q(x[:, self.block]) - self.log_q(new[:, self.block])
+        if self.shear is not None:
+            new = np.asarray(self.shear.inverse(new), dtype=float)
+        return new, log_ratio
