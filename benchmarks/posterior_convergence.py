@@ -74,9 +74,10 @@ def demo_model(max_iter: int, cache: Path | None = None):
 
 # part of the cache key, so a chain run with other default moves or coordinates is not resumed:
 # edit it whenever sample_posterior's default moves or sampled coordinates change
-SAMPLER_VERSION = ("DE move followed by StyleRotations, then an IndependenceMove on the "
-                   "hyperparameters (Laplace proposal, adapted after 150 steps; a mixture with "
-                   "one component per idle-factor mode)")
+SAMPLER_VERSION = ("DE move (in the style shear's coordinates) followed by StyleRotations, then "
+                   "an IndependenceMove on the hyperparameters (Laplace proposal in the shear's "
+                   "coordinates, adapted after 150 steps; a mixture with one component per "
+                   "idle-factor mode)")
 
 
 def _key(model) -> str:

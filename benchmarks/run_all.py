@@ -63,6 +63,7 @@ BENCHMARKS = [
     "projection_budget",
     "sparse_inference",
     "compile_cache",
+    "style_shear",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 
