@@ -292,7 +292,9 @@ def test_minimizing_some_entries_holds_the_others(tiny_model, tiny_data):
         for key in params:
             if key not in keys:
                 np.testing.assert_array_equal(np.asarray(p[key]), np.asarray(params[key]))
-        assert res.fun == pytest.approx(part(p, q), rel=1e-12)
+        # the same objective from another compiled program: equal up to rounding (1.3e-12
+        # relative seen on this CPU)
+        assert res.fun == pytest.approx(part(p, q), rel=1e-10)
         assert res.fun <= part(params, q)
     with pytest.raises(ValueError, match="part"):
         project.minimize_scaled(params, args, statics, 5, part="middle")
