@@ -66,6 +66,7 @@ def test_a_model_targets_shear_is_the_kernels_mean_style_diagonal(tiny_model):
     target = Target(tiny_model)
     shear = StyleShear.for_target(target)
     assert [target.names[i] for i in shear.scale_index] == ["log_beta[0]", "log_alpha[0]"]
+    assert StyleShear.for_target(target) is shear  # built once per target
     p = target.unravel(jnp.asarray(target.x0))
     data = tiny_model.data
     frames = [np.repeat(np.asarray(data.onehot[f]) @ np.asarray(style_to_simplex(p["style:" + f])),

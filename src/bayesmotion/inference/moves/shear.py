@@ -97,7 +97,14 @@ class StyleShear:
     def for_target(cls, target) -> StyleShear | None:
         """The shear of a :class:`bayesmotion.inference.target.Target` that samples style
         vectors together with the output scales they multiply; None for any other target
-        (no style vectors, styles held fixed, or a bare density)."""
+        (no style vectors, styles held fixed, or a bare density). Built once per target (its
+        maps compile once per run, however many times the moves are rebuilt)."""
+        if "_style_shear" not in vars(target):
+            target._style_shear = cls._build(target)
+        return target._style_shear
+
+    @classmethod
+    def _build(cls, target) -> StyleShear | None:
         from bayesmotion.inference.moves.rotations import style_slices
 
         model = getattr(target, "model", None)
