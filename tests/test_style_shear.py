@@ -27,7 +27,7 @@ LOC = np.array([0.0, 1.0])
 
 
 def make_shear():
-    return StyleShear({"emotion": STYLE_IDX}, {"emotion": ONEHOT}, LENGTHS, [0, 1])
+    return StyleShear({"emotion": STYLE_IDX}, {"emotion": ONEHOT}, [([0, 1], ["emotion"], LENGTHS)])
 
 
 def log_g_reference(u):
@@ -52,14 +52,21 @@ def test_shear_is_a_volume_preserving_bijection_that_shifts_only_the_scales():
 
 
 def test_shear_refuses_inconsistent_layouts():
+    styles, onehot = {"emotion": STYLE_IDX}, {"emotion": ONEHOT}
     with pytest.raises(ValueError, match="do not fit"):
-        StyleShear({"emotion": STYLE_IDX[:-1]}, {"emotion": ONEHOT}, LENGTHS, [0, 1])
-    with pytest.raises(ValueError, match="positive frame counts"):
-        StyleShear({"emotion": STYLE_IDX}, {"emotion": ONEHOT}, -LENGTHS, [0, 1])
-    with pytest.raises(ValueError, match="output-scale"):
-        StyleShear({"emotion": STYLE_IDX}, {"emotion": ONEHOT}, LENGTHS, [])
+        StyleShear({"emotion": STYLE_IDX[:-1]}, onehot, [([0, 1], ["emotion"], LENGTHS)])
+    with pytest.raises(ValueError, match="one positive number per trial"):
+        StyleShear(styles, onehot, [([0, 1], ["emotion"], -LENGTHS)])
+    with pytest.raises(ValueError, match="one positive number per trial"):
+        StyleShear(styles, onehot, [([0, 1], ["emotion"], LENGTHS[:-1])])
+    with pytest.raises(ValueError, match="overlap"):
+        StyleShear(styles, onehot, [([0, 2], ["emotion"], LENGTHS)])
+    with pytest.raises(ValueError, match="no style coordinates"):
+        StyleShear(styles, onehot, [([0, 1], ["couple"], LENGTHS)])
+    with pytest.raises(ValueError, match="output-scale coordinates"):
+        StyleShear(styles, onehot, [([], ["emotion"], LENGTHS)])
     with pytest.raises(ValueError, match="style factor"):
-        StyleShear({}, {}, LENGTHS, [0])
+        StyleShear({}, {}, [([0], ["emotion"], LENGTHS)])
 
 
 def test_a_model_targets_shear_is_the_kernels_mean_style_diagonal(tiny_model):
@@ -73,10 +80,39 @@ def test_a_model_targets_shear_is_the_kernels_mean_style_diagonal(tiny_model):
                         np.asarray(data.lengths), axis=0) for f in tiny_model.spec.factors
               if "style:" + f in p]
     want = np.log(np.mean(np.asarray(style_gram_diag(frames, sum(data.lengths)))))
-    assert float(shear.log_g(jnp.asarray(target.x0))) == pytest.approx(want, rel=1e-12)
+    assert float(shear.log_g(jnp.asarray(target.x0), 0)) == pytest.approx(want, rel=1e-12)
+    # the dynamics' g weighs each trial by its outputs, its frames after the first o
+    o = tiny_model.spec.order
+    outs = [np.repeat(np.asarray(data.onehot[f]) @ np.asarray(style_to_simplex(p["style:" + f])),
+                      np.asarray(data.lengths) - o, axis=0) for f in tiny_model.spec.factors
+            if "style:" + f in p]
+    want = np.log(np.mean(np.asarray(style_gram_diag(outs, sum(data.lengths) - o * len(
+        data.lengths)))))
+    assert float(shear.log_g(jnp.asarray(target.x0), 1)) == pytest.approx(want, rel=1e-12)
     # the default moves propose with it; nothing to shear where the styles are held fixed
     assert isinstance(default_moves(target).inner, ShearedDE)
     assert StyleShear.for_target(Target(tiny_model, block="hyper")) is None
+    upper = Target(tiny_model, block="upper")  # the factorised sampler's (beta, alpha, S)
+    assert [upper.names[i] for i in StyleShear.for_target(upper).scale_index] == [
+        "log_beta[0]", "log_alpha[0]"]
+
+
+@pytest.mark.parametrize("kw, want", [
+    ({"dynamics_linear": "kernel"}, ["log_beta[0]", "log_alpha[0]", "log_alpha[3]",
+                                     "log_alpha[4]"]),
+    ({"dynamics_factors": ()}, ["log_beta[0]"]),
+])
+def test_each_layer_shears_the_scales_its_own_style_factor_multiplies(kw, want):
+    # the paper's linear dynamics term is multiplied by the style factor too; a layer without
+    # style factors keeps its scales
+    from bayesmotion import HGPDM
+
+    from .conftest import make_tiny_dataset
+
+    model = HGPDM(latent_dim=2, interaction_dim=2, **kw).fit(make_tiny_dataset(), max_iter=3,
+                                                             progress=False)
+    target = Target(model)
+    assert [target.names[i] for i in StyleShear.for_target(target).scale_index] == want
 
 
 def ridge_logp(x):

@@ -139,15 +139,17 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         block = independence_block(target, cov)
         # the proposal lives where DE proposes: in the shear's coordinates, where there is one
         shear = StyleShear.for_target(target)
-        modes = sheared_modes(idle_factor_modes(target, centre, cov, block), shear)
+        modes = idle_factor_modes(target, centre, cov, block)  # info reports them as found
+        proposal_modes = sheared_modes(modes, shear)
 
         def phase_moves(first: bool):
             if first:
-                return default_moves(target, hmc, mixture_proposal(block, modes))
+                return default_moves(target, hmc, mixture_proposal(block, proposal_modes))
             z = be.get_chain()[n_adapt // 3:n_adapt].reshape(-1, target.ndim)
             if shear is not None:
-                z = np.asarray(shear.forward(z))
-            return default_moves(target, hmc, mixture_proposal(block, modes, z[:, block]))
+                z = in_halves(shear.forward, z, W)
+            return default_moves(target, hmc, mixture_proposal(block, proposal_modes,
+                                                               z[:, block]))
 
         # (a resumed file's stored adaptation may be longer than this call's n_steps)
         phases = ([(min(n_adapt, n_steps), True), (n_steps, False)] if n_adapt

@@ -107,7 +107,10 @@ def sheared_modes(modes: list[dict], shear) -> list[dict]:
     Laplace covariance carried through the map's Jacobian at it."""
     if shear is None:
         return modes
-    one = lambda v: shear.forward(v[None])[0]  # noqa: E731
+
+    def one(v):
+        return shear.forward(v[None])[0]
+
     out = []
     for m in modes:
         J = np.asarray(jax.jacfwd(one)(jnp.asarray(m["x"], dtype=float)))

@@ -11,15 +11,17 @@ against the stick-breaking coordinates), along which differential evolution, who
 are straight lines, crawls.
 
 :class:`StyleShear` is the map ``y = phi(x)`` that adds ``log g(S)`` to each of those log
-scales, with
+scales, one ``g`` per layer:
 
     g(S) = sum_n w_n prod_f |s_f(n)|^2,
 
-the frame-weighted mean (``w_n``: frames of trial n / all frames) of the style part of the
-kernels' diagonal, ``s_f(n)`` the style vector of trial n's level of factor f. The style
-coordinates pass through unchanged, so ``phi`` is a shear: its Jacobian is triangular with a unit
-diagonal, ``|det dphi/dx| = 1``. In ``y`` the log scales are those of the mean prior variance
-itself, and the ridge is (nearly) straight.
+the weighted mean over training trials n of the style part of the layer's kernel diagonal:
+``f`` runs over the layer's style factors, ``s_f(n)`` is the style vector of trial n's level,
+and ``w_n`` is trial n's share of the layer's outputs (its frames in the interaction layer, its
+frames after the first o in the dynamics, a periodic model's loop rows left out). The style
+coordinates pass through unchanged, so ``phi`` is a shear: its Jacobian is triangular with a
+unit diagonal, ``|det dphi/dx| = 1``. In ``y`` the log scales are those of the mean prior
+variance itself, and the ridge is (nearly) straight.
 
 :class:`ShearedDE` is emcee's :class:`~emcee.moves.DEMove` proposing in ``y``: it maps the
 walkers (and the complementary ensemble) to ``y``, takes emcee's differential-evolution step
@@ -32,13 +34,20 @@ move costs one log-density per walker, as DE does. Measured in
 
 from __future__ import annotations
 
+import weakref
+
 import emcee
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from bayesmotion.gp.kernels import has_linear_term
+from bayesmotion.inference.moves.rotations import style_slices
 from bayesmotion.model.params import style_to_simplex
+
+# target -> its shear (or None), so the maps compile once per run however often the moves are
+# rebuilt (the adaptation's two phases, the independence block's choice)
+_BUILT: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 class StyleShear:
@@ -48,65 +57,82 @@ class StyleShear:
         style_index: factor -> flat indices ``(K * (K - 1),)`` of its unconstrained style
             block, in C order (:func:`bayesmotion.inference.moves.style_slices`).
         onehot: factor -> ``(R, K)`` one-hot level of each training trial.
-        lengths: ``(R,)`` frames per trial (the weights ``w``).
-        scale_index: flat indices of the log output scales that multiply the style factor.
+        groups: one ``(scale_index, factors, weights)`` per layer: the flat indices of the log
+            output scales that multiply the layer's style factor, the sampled factors in it
+            (keys of ``style_index``), and ``(R,)`` positive weights of the trials (normalised
+            here). Scales and style coordinates must not overlap.
 
     ``forward(xs)`` maps ``(n, d)`` walkers to ``y`` and ``inverse(ys)`` back (both jitted,
-    vmapped over walkers); ``log_g(x)`` is ``log g`` at one flat vector.
+    vmapped over walkers); ``log_g(x, i)`` is group ``i``'s ``log g`` at one flat vector.
     """
 
-    def __init__(self, style_index: dict, onehot: dict, lengths, scale_index):
-        lengths = np.asarray(lengths, dtype=float).ravel()
+    def __init__(self, style_index: dict, onehot: dict, groups):
         if not style_index:
             raise ValueError("StyleShear needs at least one sampled style factor")
-        if lengths.size == 0 or np.any(lengths <= 0):
-            raise ValueError(f"lengths must be positive frame counts, got {lengths!r}")
-        self._blocks = []
+        self._blocks = {}
         for f, idx in style_index.items():
             oh = np.asarray(onehot[f], dtype=float)
             K = oh.shape[1]
             idx = np.asarray(idx, dtype=int).ravel()
-            if oh.shape[0] != lengths.size or idx.size != K * (K - 1):
-                raise ValueError(f"factor {f!r}: {oh.shape[0]} trials and {idx.size} style "
-                                 f"coordinates do not fit {lengths.size} trials of {K} levels")
-            self._blocks.append((jnp.asarray(idx), K, jnp.asarray(oh)))
-        self.scale_index = np.asarray(scale_index, dtype=int).ravel()
-        if self.scale_index.size == 0:
-            raise ValueError("StyleShear needs at least one output-scale coordinate")
-        self._w = jnp.asarray(lengths / lengths.sum())
-        scale = jnp.asarray(self.scale_index)
+            if idx.size != K * (K - 1):
+                raise ValueError(f"factor {f!r}: {idx.size} style coordinates do not fit "
+                                 f"{K} levels")
+            self._blocks[f] = (jnp.asarray(idx), K, jnp.asarray(oh))
+        styles = np.concatenate([np.asarray(i, dtype=int).ravel()
+                                 for i in style_index.values()])
+        self._groups = []
+        for scale, factors, weights in groups:
+            scale = np.asarray(scale, dtype=int).ravel()
+            w = np.asarray(weights, dtype=float).ravel()
+            if scale.size == 0 or not factors:
+                raise ValueError("each group needs output-scale coordinates and style factors")
+            if np.intersect1d(scale, styles).size:
+                raise ValueError("the output scales and the style coordinates overlap: the map "
+                                 "would not be invertible")
+            unknown = [f for f in factors if f not in self._blocks]
+            if unknown:
+                raise ValueError(f"factors {unknown} have no style coordinates")
+            if np.any(w <= 0) or any(self._blocks[f][2].shape[0] != w.size for f in factors):
+                raise ValueError(f"weights must be one positive number per trial, got {w!r}")
+            self._groups.append((jnp.asarray(scale), tuple(factors), jnp.asarray(w / w.sum())))
+        if not self._groups:
+            raise ValueError("StyleShear needs at least one group of output scales")
+        self.scale_index = np.concatenate([np.asarray(g[0]) for g in self._groups])
 
         def forward(x):
-            return x.at[scale].add(self.log_g(x))
+            for i, (scale, _, _) in enumerate(self._groups):
+                x = x.at[scale].add(self.log_g(x, i))
+            return x
 
         def inverse(y):  # log g reads only the style coordinates, which phi leaves alone
-            return y.at[scale].add(-self.log_g(y))
+            for i, (scale, _, _) in enumerate(self._groups):
+                y = y.at[scale].add(-self.log_g(y, i))
+            return y
 
         self.forward = jax.jit(jax.vmap(forward))
         self.inverse = jax.jit(jax.vmap(inverse))
 
-    def log_g(self, x):
-        """``log sum_n w_n prod_f |s_f(n)|^2`` at the flat vector ``x``."""
+    def log_g(self, x, i: int = 0):
+        """``log sum_n w_n prod_f |s_f(n)|^2`` of group ``i`` at the flat vector ``x``."""
+        _, factors, w = self._groups[i]
         d = 1.0
-        for idx, K, oh in self._blocks:
+        for f in factors:
+            idx, K, oh = self._blocks[f]
             s = oh @ style_to_simplex(x[idx].reshape(K, K - 1))
             d = d * jnp.sum(s * s, -1)
-        return jnp.log(jnp.sum(self._w * d))
+        return jnp.log(jnp.sum(w * d))
 
     @classmethod
     def for_target(cls, target) -> StyleShear | None:
         """The shear of a :class:`bayesmotion.inference.target.Target` that samples style
         vectors together with the output scales they multiply; None for any other target
-        (no style vectors, styles held fixed, or a bare density). Built once per target (its
-        maps compile once per run, however many times the moves are rebuilt)."""
-        if "_style_shear" not in vars(target):
-            target._style_shear = cls._build(target)
-        return target._style_shear
+        (no style vectors, styles held fixed, or a bare density). Built once per target."""
+        if target not in _BUILT:
+            _BUILT[target] = cls._build(target)
+        return _BUILT[target]
 
     @classmethod
     def _build(cls, target) -> StyleShear | None:
-        from bayesmotion.inference.moves.rotations import style_slices
-
         model = getattr(target, "model", None)
         names = getattr(target, "names", None)
         data = getattr(model, "data", None)
@@ -116,16 +142,23 @@ class StyleShear:
         slices = style_slices(target.unravel, target.x0)
         if not slices:
             return None
-        scales = [n for n in ("log_beta[0]", "log_alpha[0]") if n in names]
+        spec, lengths = model.spec, np.asarray(data.lengths, dtype=float)
+        o = spec.order
+        dyn_scales = ["log_alpha[0]"]
         alpha = model.params.get("log_alpha")
-        if "log_alpha[0]" in names and alpha is not None and has_linear_term(
-                np.asarray(alpha), model.spec.order):
-            o = model.spec.order
-            scales += [f"log_alpha[{1 + o + l}]" for l in range(o)]
-        if not scales:
+        if alpha is not None and has_linear_term(np.asarray(alpha), o):
+            dyn_scales += [f"log_alpha[{1 + o + l}]" for l in range(o)]
+        groups = []
+        for scales, factors, weights in (
+                (["log_beta[0]"], spec.interaction_factors, lengths),
+                (dyn_scales, spec.dynamics_factors, lengths - o)):  # outputs per trial
+            scales = [names.index(n) for n in scales if n in names]
+            factors = [f for f in (factors or ()) if f in slices]
+            if scales and factors:
+                groups.append((scales, factors, weights))
+        if not groups:
             return None
-        return cls(slices, {f: data.onehot[f] for f in slices}, data.lengths,
-                   [names.index(n) for n in scales])
+        return cls(slices, {f: data.onehot[f] for f in slices}, groups)
 
 
 class ShearedDE(emcee.moves.DEMove):
@@ -133,8 +166,8 @@ class ShearedDE(emcee.moves.DEMove):
     :class:`StyleShear` (module docstring). Other arguments as
     :class:`emcee.moves.DEMove`."""
 
-    def __init__(self, shear: StyleShear, sigma: float = 1.0e-5, gamma0=None, **kwargs):
-        super().__init__(sigma=sigma, gamma0=gamma0, **kwargs)
+    def __init__(self, shear: StyleShear, **kwargs):
+        super().__init__(**kwargs)
         self.shear = shear
 
     def get_proposal(self, s, c, random):
