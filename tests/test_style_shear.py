@@ -196,3 +196,13 @@ def test_sheared_modes_carry_the_laplace_covariance_through_the_jacobian():
                   for e in np.eye(8)], 1)
     np.testing.assert_allclose(m["cov"], J @ cov @ J.T, rtol=1e-6, atol=1e-9)
     assert sheared_modes([{"x": x, "cov": cov}], None)[0]["cov"] is cov
+
+
+def test_a_target_that_cannot_be_cached_still_gets_its_answer():
+    from dataclasses import dataclass
+
+    @dataclass
+    class Bare:  # eq=True makes it unhashable: no cache, and no model, so no shear
+        ndim: int = 2
+
+    assert StyleShear.for_target(Bare()) is None

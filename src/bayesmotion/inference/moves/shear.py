@@ -127,9 +127,12 @@ class StyleShear:
         """The shear of a :class:`bayesmotion.inference.target.Target` that samples style
         vectors together with the output scales they multiply; None for any other target
         (no style vectors, styles held fixed, or a bare density). Built once per target."""
-        if target not in _BUILT:
-            _BUILT[target] = cls._build(target)
-        return _BUILT[target]
+        try:
+            if target not in _BUILT:
+                _BUILT[target] = cls._build(target)
+            return _BUILT[target]
+        except TypeError:  # a target that cannot be weakly referenced or hashed
+            return cls._build(target)
 
     @classmethod
     def _build(cls, target) -> StyleShear | None:
