@@ -8,6 +8,7 @@ import warnings
 import numpy as np
 
 from bayesmotion.data.files import atomic_path
+from bayesmotion.inference.target import chain_gram
 
 
 def _dims(model) -> tuple[dict, dict]:
@@ -97,23 +98,25 @@ def arviz_without_numba():
 def compare_posteriors(a, b, var_names=None) -> dict:
     """Compare two posteriors of the same target (e.g. emcee vs NUTS).
 
-    For every unconstrained coordinate: both means and both standard deviations, their
-    Monte-Carlo standard errors (arviz ``mcse``, methods "mean" and "sd"), the z-scores of the
-    differences, and the R-hat of the pooled chains of both methods (draws truncated to the
-    shorter run).
+    For every unconstrained coordinate and style Gram entry (:func:`with_gram`): both means and
+    both standard deviations, their Monte-Carlo standard errors (arviz ``mcse``, methods "mean"
+    and "sd"), the z-scores of the differences, and the R-hat of the pooled chains of both
+    methods (draws truncated to the shorter run).
 
     Returns:
         dict with per-coordinate arrays and ``max_abs_z``, ``max_abs_z_sd``, ``max_rhat``.
     """
     import arviz as az
 
-    def ds(post, n=None):
-        x = post.chains if n is None else post.chains[:, -n:]
+    ca, names = with_gram(a)
+    cb, _ = with_gram(b)
+
+    def ds(x):
         return _theta(x), x
 
-    n = min(a.chains.shape[1], b.chains.shape[1])
-    da, xa = ds(a)
-    db, xb = ds(b)
+    n = min(ca.shape[1], cb.shape[1])
+    da, xa = ds(ca)
+    db, xb = ds(cb)
     mean_a, mean_b = xa.mean((0, 1)), xb.mean((0, 1))
     with arviz_without_numba():
         se_a, se_b = (az.mcse(d)["theta"].values for d in (da, db))
@@ -121,20 +124,36 @@ def compare_posteriors(a, b, var_names=None) -> dict:
     z = (mean_a - mean_b) / np.sqrt(se_a**2 + se_b**2)
     sd_a, sd_b = xa.std((0, 1)), xb.std((0, 1))
     z_sd = (sd_a - sd_b) / np.sqrt(sse_a**2 + sse_b**2)
-    pooled = np.concatenate([a.chains[:, -n:], b.chains[:, -n:]])
+    pooled = np.concatenate([ca[:, -n:], cb[:, -n:]])
     rhat = az.rhat(_theta(pooled))["theta"].values
-    return {"names": a.target.names, "mean_a": mean_a, "mean_b": mean_b, "mcse_a": se_a,
+    return {"names": names, "mean_a": mean_a, "mean_b": mean_b, "mcse_a": se_a,
             "mcse_b": se_b, "z": z, "sd_a": sd_a, "sd_b": sd_b, "mcse_sd_a": sse_a,
             "mcse_sd_b": sse_b, "z_sd": z_sd, "rhat": rhat,
             "max_abs_z": float(np.max(np.abs(z))), "max_abs_z_sd": float(np.max(np.abs(z_sd))),
             "max_rhat": float(np.max(rhat))}
 
 
+def with_gram(post) -> tuple[np.ndarray, list[str]]:
+    """(chains (n_chains, n_draws, ndim + m), names): the posterior's unconstrained draws and,
+    after them, its style vectors' Gram entries (:func:`bayesmotion.inference.target.gram_entries`,
+    none for a target without style vectors)."""
+    x = np.asarray(post.chains)
+    target = getattr(post, "target", None)
+    names = list(getattr(target, "names", range(x.shape[-1])))
+    if hasattr(target, "unravel"):
+        gram_names, g = chain_gram(target, x)
+        x, names = np.concatenate([x, g], -1), names + gram_names
+    return x, names
+
+
 def convergence(post) -> dict:
-    """max R-hat, min bulk and tail ESS over all sampled coordinates (unconstrained)."""
+    """max R-hat, min bulk and tail ESS over all sampled coordinates (unconstrained) and the
+    style vectors' Gram entries (:func:`bayesmotion.inference.target.gram_entries`, what
+    the likelihood identifies of them; the style rotations leave them unchanged, so the
+    vectors' own coordinates can look mixed while these are not)."""
     import arviz as az
 
-    d = _theta(post.chains)
+    d = _theta(with_gram(post)[0])
     with arviz_without_numba():
         return {"max_rhat": float(az.rhat(d)["theta"].max()),
                 "min_ess_bulk": float(az.ess(d, method="bulk")["theta"].min()),

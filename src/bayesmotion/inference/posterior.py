@@ -36,7 +36,7 @@ from scipy.special import ndtri
 from bayesmotion.errors import BayesmotionError, warn
 from bayesmotion.inference.diagnostics import arviz_without_numba, save_netcdf, to_inference_data
 from bayesmotion.inference.predictive import generate_posterior
-from bayesmotion.inference.target import Target
+from bayesmotion.inference.target import Target, chain_gram
 from bayesmotion.model.generate import SAMPLE_MEMORY
 from bayesmotion.model.params import AR_KEY, STYLE_PREFIX, ar_coefficients, style_to_simplex
 from bayesmotion.model.predict import condition
@@ -59,7 +59,9 @@ class Posterior:
             of the (beta, alpha, styles) ensemble, gamma's in ``info["bottom_acceptance"]``) or
             mean acceptance prob (NUTS).
         method: "emcee" or "nuts".
-        info: tau, burn, thin, seconds, n_steps, warnings.
+        info: tau (per sampled coordinate), tau_gram (per style Gram entry,
+            :func:`~bayesmotion.inference.target.gram_entries`), burn, thin, seconds, n_steps,
+            warnings.
     """
 
     model: object
@@ -147,21 +149,28 @@ def _constrain(p: dict) -> dict:
 
 
 def posterior_from_chain(target, chain, lp, acceptance, burn, thin, info, min_burn: int = 0):
-    """Burn-in and thinning from the integrated autocorrelation time of the whole chain; the
-    burn-in covers at least ``min_burn`` steps (an adaptation)."""
+    """Burn-in and thinning from the integrated autocorrelation time of the whole chain, taken
+    over the sampled coordinates and the style vectors' Gram entries
+    (:func:`~bayesmotion.inference.target.gram_entries`, ``info["tau_gram"]``); the burn-in
+    covers at least ``min_burn`` steps (an adaptation)."""
     import emcee
 
     # a walker that never moved in some coordinate makes emcee's autocorrelation 0/0: that
     # coordinate's tau is then NaN, and burn_thin reports the chain as too short
+    gram_names, gram = chain_gram(target, chain) if hasattr(target, "unravel") else ([], None)
     with np.errstate(invalid="ignore", divide="ignore"):
         tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0), dtype=float)
-    bt = burn_thin(tau, chain.shape[0], burn, thin, min_burn,
+        tau_gram = (np.asarray(emcee.autocorr.integrated_time(gram, tol=0), dtype=float)
+                    if gram_names else np.empty(0))
+    both = np.concatenate([tau, tau_gram])
+    bt = burn_thin(both, chain.shape[0], burn, thin, min_burn,
                    (info.get("pace") or {}).get("seconds_per_step"), chain.shape[1])
     sel = slice(bt["burn"], None, bt["thin"])
     return Posterior(target.model, target, np.swapaxes(chain[sel], 0, 1),
                      np.swapaxes(lp[sel], 0, 1), np.asarray(acceptance), "emcee",
-                     {**bt, "tau": tau, "n_walkers": chain.shape[1], "n_steps": chain.shape[0],
-                      **info})
+                     {**bt, "tau": tau,
+                      "tau_gram": dict(zip(gram_names, tau_gram.tolist(), strict=True)),
+                      "n_walkers": chain.shape[1], "n_steps": chain.shape[0], **info})
 
 
 def steps_for_rhat(tau, n_walkers: int, min_burn: int = 0, rhat: float = 1.01) -> int:

@@ -10,7 +10,13 @@ from jax.flatten_util import ravel_pytree
 
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.logpost import LAYERS
-from bayesmotion.model.params import AR_KEY, LATENT_KEYS, STYLE_PREFIX, simplex_to_style
+from bayesmotion.model.params import (
+    AR_KEY,
+    LATENT_KEYS,
+    STYLE_PREFIX,
+    simplex_to_style,
+    style_to_simplex,
+)
 from bayesmotion.optim.minimize import map_optimize
 
 SAMPLED_HYPER = ("log_gamma", "log_beta", "log_alpha", AR_KEY)  # those the model has
@@ -169,6 +175,50 @@ def start_points(target, centre, n, init, ball, rng, cov=None):
         raise BayesmotionError(f"init must be 'laplace' or 'ball', got {init!r}")
     return draw_start(target.logp_batch, centre, target.laplace(centre) if cov is None else cov,
                       n, rng)
+
+
+def style_grams(target, xs) -> dict[str, np.ndarray]:
+    """factor -> (n, K, K) Gram matrices ``S S^T`` of each sampled factor's level vectors
+    (rows of ``S`` on the simplex) at the flat draws ``xs`` (n, ndim): all the likelihood sees
+    of the style vectors. The style rotations move the vectors along the orbits that keep it,
+    so the vectors' own coordinates can mix fast while the Gram, which carries the emotions'
+    likeness to each other, mixes slowly; its entries are the style vectors' identified
+    quantities. Empty for a target without style vectors."""
+    xs = np.asarray(xs, dtype=np.float64).reshape(-1, target.ndim)
+    keys = [k for k in target.unravel(jnp.asarray(target.x0)) if k.startswith(STYLE_PREFIX)]
+    if not keys:
+        return {}
+
+    def grams(x):
+        p = target.unravel(x)
+        out = {}
+        for k in keys:
+            S = style_to_simplex(p[k])
+            out[k[len(STYLE_PREFIX):]] = S @ S.T
+        return out
+
+    return {f: np.asarray(g) for f, g in jax.jit(jax.vmap(grams))(jnp.asarray(xs)).items()}
+
+
+def gram_entries(target, xs) -> tuple[list[str], np.ndarray]:
+    """(names, (n, m) values) of the Gram entries ``G_ij``, i <= j, of every sampled style factor
+    (:func:`style_grams`) at the flat draws ``xs``; names as ``gram:emotion[happy, sad]``."""
+    names, cols = [], []
+    for f, G in style_grams(target, xs).items():
+        # a stand-in target (tests) may have no model levels: the levels' indices then
+        levels = list(getattr(getattr(target, "model", None), "levels", {}).get(
+            f, range(G.shape[-1])))
+        for i, j in zip(*np.triu_indices(G.shape[-1]), strict=True):
+            names.append(f"gram:{f}[{levels[i]}, {levels[j]}]")
+            cols.append(G[:, i, j])
+    n = np.asarray(xs).reshape(-1, target.ndim).shape[0]
+    return names, (np.stack(cols, -1) if cols else np.empty((n, 0)))
+
+
+def chain_gram(target, chain) -> tuple[list[str], np.ndarray]:
+    """(names, (steps, walkers, m)) Gram entries (:func:`gram_entries`) along a raw chain."""
+    names, g = gram_entries(target, np.asarray(chain).reshape(-1, target.ndim))
+    return names, g.reshape(*np.shape(chain)[:2], -1)
 
 
 def _flat_names(params: dict) -> list[str]:
