@@ -206,3 +206,32 @@ def test_a_target_that_cannot_be_cached_still_gets_its_answer():
         ndim: int = 2
 
     assert StyleShear.for_target(Bare()) is None
+
+
+@pytest.mark.parametrize("sheared", [True, False])
+def test_canonical_de_leaves_the_ridge_target_invariant(sheared):
+    # DE on the style vectors' LQ factor (each walker keeping its rotation, the rotations moving
+    # it): the volume term must be exact for the norms |s - c|^2 to keep their Dirichlet law
+    from bayesmotion.inference.moves import StyleRotations
+    from bayesmotion.inference.moves.canonical import CanonicalDE, CanonicalStyles
+
+    shear = make_shear()
+    can = CanonicalStyles({"emotion": STYLE_IDX}, shear if sheared else None)
+    moves = StyleRotations(CanonicalDE(can), {"emotion": STYLE_IDX}, {"emotion": CONC})
+    chain = run_ridge(moves, n_walkers=40)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tau = emcee.autocorr.integrated_time(chain, quiet=True)
+    n_eff = chain.shape[0] * chain.shape[1] / tau.max()
+    flat = chain.reshape(-1, 8)
+    s = np.asarray(jax.vmap(lambda u: style_to_simplex(u.reshape(K, K - 1)))(
+        jnp.asarray(flat[:, 2:])))
+    a0 = CONC.sum(1, keepdims=True)
+    mean, var = CONC / a0, CONC * (a0 - CONC) / (a0**2 * (a0 + 1))
+    r2 = np.sum((s - 1.0 / K) ** 2, -1)  # each level's squared distance from the centre
+    assert np.all(np.abs(r2.mean(0) - np.sum(var + (mean - 1.0 / K) ** 2, 1))
+                  < 4 * r2.std(0) / np.sqrt(n_eff) + 1e-3)
+    assert np.all(np.abs(s.mean(0) - mean) < 4 * s.std(0) / np.sqrt(n_eff) + 1e-3)
+    y = np.asarray(shear.forward(jnp.asarray(flat)))[:, :2]
+    assert np.all(np.abs(y.mean(0) - LOC) < 4 * SD / np.sqrt(n_eff))
+    assert np.all(np.abs(y.std(0) / SD - 1) < 4 * np.sqrt(0.5 / n_eff) + 0.02)

@@ -8,6 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesmotion.inference.moves import (
+    CanonicalDE,
+    CanonicalStyles,
     EnsembleHMC,
     IndependenceMove,
     Sequence,
@@ -143,8 +145,9 @@ def mixture_proposal(block, modes, z=None):
 def default_moves(target, hmc: bool = False, proposal=None):
     """DE (proposing in :class:`bayesmotion.inference.moves.StyleShear`'s coordinates when the
     target samples style vectors with the output scales they multiply,
-    :class:`bayesmotion.inference.moves.ShearedDE`), each step followed by the style rotations
-    when the target samples style vectors;
+    :class:`bayesmotion.inference.moves.ShearedDE`, and there in the canonical coordinates of
+    the factors with 3 or more levels, :class:`bayesmotion.inference.moves.CanonicalDE`), each
+    step followed by the style rotations when the target samples style vectors;
     then, with ``proposal = (block, mean, cov[, weights])`` (a mixture when ``mean`` is 2-d;
     in the shear's coordinates where there is one, :func:`sheared_modes`), an independence step
     on that block
@@ -160,9 +163,12 @@ def default_moves(target, hmc: bool = False, proposal=None):
     import emcee
 
     shear = StyleShear.for_target(target)
-    # DE along the output scales' ridge with the style norms (ShearedDE), where there is one
-    moves = emcee.moves.DEMove() if shear is None else ShearedDE(shear)
     slices = style_slices(target.unravel, target.x0) if hasattr(target, "unravel") else {}
+    canonical = CanonicalStyles(slices, shear)
+    if canonical.blocks:  # DE on what the likelihood sees of the rotated style vectors
+        moves = CanonicalDE(canonical)
+    else:  # DE along the output scales' ridge with the style norms, where there is one
+        moves = emcee.moves.DEMove() if shear is None else ShearedDE(shear)
     if slices:  # cross the style vectors' rotation ridges without GP evaluations
         conc = target.model.log_posterior_fn.style_prior.concentration
         moves = StyleRotations(moves, slices, conc)

@@ -2,13 +2,21 @@
 style vectors' symmetry orbits (exact, and free of GP evaluations), ensemble-preconditioned HMC
 on a block of coordinates, independence Metropolis on a block, and differential evolution in
 coordinates where the output scales do not trade off against the style norms
-(:class:`ShearedDE`); :class:`Sequence` composes them within one step."""
+(:class:`ShearedDE`) and, for the rotated style vectors, on what the likelihood sees of them
+(:class:`CanonicalDE`); :class:`Sequence` composes them within one step."""
 
+from bayesmotion.inference.moves.canonical import CanonicalDE, CanonicalStyles
 from bayesmotion.inference.moves.hmc import EnsembleHMC
 from bayesmotion.inference.moves.independence import IndependenceMove
-from bayesmotion.inference.moves.rotations import StyleRotations, plane_rotations, style_slices
+from bayesmotion.inference.moves.rotations import (
+    StyleRotations,
+    plane_basis,
+    plane_rotations,
+    style_slices,
+)
 from bayesmotion.inference.moves.sequence import Sequence
 from bayesmotion.inference.moves.shear import ShearedDE, StyleShear
 
-__all__ = ["EnsembleHMC", "IndependenceMove", "Sequence", "ShearedDE", "StyleRotations",
-           "StyleShear", "plane_rotations", "style_slices"]
+__all__ = ["CanonicalDE", "CanonicalStyles", "EnsembleHMC", "IndependenceMove", "Sequence",
+           "ShearedDE", "StyleRotations", "StyleShear", "plane_basis", "plane_rotations",
+           "style_slices"]

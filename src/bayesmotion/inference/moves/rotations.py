@@ -62,7 +62,7 @@ def style_slices(unravel, x0) -> dict[str, np.ndarray]:
     return out
 
 
-def _plane_basis(K: int) -> np.ndarray:
+def plane_basis(K: int) -> np.ndarray:
     """(K, K-1) orthonormal basis of the plane orthogonal to the ones vector."""
     w, V = np.linalg.eigh(np.eye(K) - np.ones((K, K)) / K)
     return V[:, w > 0.5]
@@ -73,7 +73,7 @@ def plane_rotations(G: np.ndarray) -> np.ndarray:
     Cayley transform R of the skew part of G (det 1; -G gives R^-1), acting on the plane
     orthogonal to the ones vector."""
     k = G.shape[-1]
-    B = _plane_basis(k + 1)
+    B = plane_basis(k + 1)
     eye = np.eye(k)
     A = 0.5 * (G - np.swapaxes(G, -1, -2))
     R = np.linalg.solve(eye - 0.5 * A, eye + 0.5 * A)

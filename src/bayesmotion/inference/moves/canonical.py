@@ -1,0 +1,162 @@
+"""Canonical coordinates of the style vectors: their Gram matrix's factor and the rotation they
+sit at (see :class:`CanonicalStyles`), and differential evolution in them (:class:`CanonicalDE`).
+
+A factor's level vectors ``s_k`` (rows of ``S``, on the simplex) are, about the simplex's centre
+``c = 1 / K``, the rows of ``V = (S - c) B`` in an orthonormal basis ``B`` of the simplex's plane
+(``K`` rows, ``n = K - 1`` columns). The likelihood sees only ``V V^T`` (``S S^T = V V^T + 1 / K``),
+and the style rotations move ``V -> V R``. The LQ decomposition ``V = T Q`` (``T`` lower
+trapezoidal with a positive diagonal, ``Q`` orthogonal) splits ``V`` into what the likelihood
+sees (``T``, with ``T T^T = V V^T``) and where on its orbit it sits (``Q``). In the sampled
+coordinates the walkers sit at different points of their orbits, so a difference of two walkers'
+style coordinates is mostly a difference of orientation; differences of their ``T`` are not.
+"""
+
+from __future__ import annotations
+
+import emcee
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bayesmotion.inference.moves.rotations import plane_basis
+from bayesmotion.model.params import simplex_to_style, style_log_jacobian, style_to_simplex
+
+# over walkers, compiled once per shape
+_TO_S = jax.jit(jax.vmap(style_to_simplex))
+_TO_U = jax.jit(jax.vmap(simplex_to_style))
+_LOG_JAC = jax.jit(jax.vmap(style_log_jacobian))
+
+
+def _tri_index(K: int):
+    """Rows, columns of ``T``'s free entries (lower trapezoidal, K x (K - 1)), and which of them
+    are diagonal; as many entries as the Gram has free values, (K - 1)(K + 2) / 2."""
+    n = K - 1
+    rows, cols = np.tril_indices(K, 0, n)
+    return rows, cols, rows == cols
+
+
+def lq(V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(..., K, n) -> T (..., K, n) lower trapezoidal with positive diagonal, Q (..., n, n)
+    orthogonal, with ``V = T Q`` (V of full column rank)."""
+    Q1, R1 = np.linalg.qr(np.swapaxes(V, -1, -2))  # V^T = Q1 R1
+    d = np.sign(np.diagonal(R1, axis1=-2, axis2=-1))
+    d = np.where(d == 0, 1.0, d)
+    T = np.swapaxes(R1, -1, -2) * d[..., None, :]
+    Q = d[..., :, None] * np.swapaxes(Q1, -1, -2)
+    return T, Q
+
+
+def lq_log_jacobian(T: np.ndarray) -> np.ndarray:
+    """log |d V / d(T, Q)| of ``V = T Q`` up to a constant (Q under the Haar measure):
+    ``sum_i (n - 1 - i) log T_ii`` (i from 0), the QR decomposition's Jacobian transposed."""
+    n = T.shape[-1]
+    diag = np.diagonal(T, axis1=-2, axis2=-1)
+    return np.sum((n - 1 - np.arange(n)) * np.log(diag), -1)
+
+
+class CanonicalStyles:
+    """The map between sampled coordinates ``x`` and canonical ones ``w`` (module docstring).
+
+    ``w`` is ``x`` (or, with ``shear``, the shear's coordinates ``y = shear.forward(x)``) with each
+    factor's style block (``K (K - 1)`` stick-breaking coordinates) replaced by the free entries
+    of ``T``, diagonal entries as logs, and zeros in the block's last ``(K - 1)(K - 2) / 2`` slots;
+    ``Q`` is kept apart. ``log_volume(w)`` is ``log |d x / d w|`` at fixed ``Q``, up to a
+    constant: a move symmetric in ``w`` that keeps ``Q`` accepts with the density ratio times
+    ``exp(log_volume(w') - log_volume(w))``.
+
+    Args:
+        slices: factor -> flat indices of its style block (``style_slices``); factors with
+            fewer than 3 levels are left as they are (their orbits are two points).
+        shear: a :class:`bayesmotion.inference.moves.StyleShear` or None.
+    """
+
+    def __init__(self, slices: dict, shear=None):
+        self.blocks = []
+        for idx in slices.values():
+            idx = np.asarray(idx, dtype=int)
+            K = int(round((1 + np.sqrt(1 + 4 * idx.size)) / 2))  # idx holds K (K - 1) entries
+            if K >= 3:
+                self.blocks.append((idx, K, plane_basis(K), _tri_index(K)))
+        self.shear = shear
+
+    def split(self, x) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Flat model coordinates (m, d) -> (w (m, d), [Q of each factor: (m, K-1, K-1)])."""
+        x = np.asarray(x, dtype=np.float64)
+        w = (np.array(x) if self.shear is None
+             else np.array(self.shear.forward(jnp.asarray(x)), dtype=np.float64))
+        qs = []
+        for idx, K, B, (rows, cols, diag) in self.blocks:
+            S = np.asarray(_TO_S(jnp.asarray(w[:, idx].reshape(-1, K, K - 1))), dtype=np.float64)
+            T, Q = lq((S - 1.0 / K) @ B)
+            vals = T[:, rows, cols]
+            vals[:, diag] = np.log(vals[:, diag])
+            w[:, idx] = 0.0
+            w[:, idx[:vals.shape[1]]] = vals
+            qs.append(Q)
+        return w, qs
+
+    def merge(self, w, qs) -> tuple[np.ndarray, np.ndarray]:
+        """Inverse of :meth:`split`: (x (m, d), inside (m,) bool). A row whose style vectors
+        leave the simplex is returned unchanged in its style blocks and marked outside."""
+        w = np.asarray(w, dtype=np.float64)
+        y = np.array(w)
+        inside = np.ones(len(w), dtype=bool)
+        for (idx, K, B, (rows, cols, diag)), Q in zip(self.blocks, qs, strict=True):
+            vals = np.array(w[:, idx[:rows.size]])
+            vals[:, diag] = np.exp(vals[:, diag])
+            T = np.zeros((len(w), K, K - 1))
+            T[:, rows, cols] = vals
+            S = (T @ Q) @ B.T + 1.0 / K
+            ok = np.all(S > 0, axis=(1, 2))
+            S = np.where(ok[:, None, None], S, 1.0 / K)
+            y[:, idx] = np.asarray(_TO_U(jnp.asarray(S)), dtype=np.float64).reshape(len(w), -1)
+            inside &= ok
+        x = y if self.shear is None else np.asarray(self.shear.inverse(jnp.asarray(y)),
+                                                    dtype=np.float64)
+        return x, inside
+
+    def log_volume(self, w) -> np.ndarray:
+        """log |d x / d w| at fixed Q, up to a constant, at rows ``w`` of canonical coordinates
+        whose style vectors are inside the simplex."""
+        w = np.asarray(w, dtype=np.float64)
+        out = np.zeros(len(w))
+        for idx, K, _, (rows, cols, diag) in self.blocks:
+            vals = np.array(w[:, idx[:rows.size]])
+            logdiag = vals[:, diag]
+            vals[:, diag] = np.exp(logdiag)
+            T = np.zeros((len(w), K, K - 1))
+            T[:, rows, cols] = vals
+            # d V / d(T, Q), d T / d log-diagonal; then d u / d S (stick-breaking, inverted)
+            out += lq_log_jacobian(T) + logdiag.sum(1)
+        return out
+
+    def log_stick(self, x) -> np.ndarray:
+        """Minus the stick-breaking log-Jacobians of the factors' blocks at model coordinates
+        ``x``: the last part of ``log |d x / d w|``."""
+        x = np.asarray(x, dtype=np.float64)
+        out = np.zeros(len(x))
+        for idx, K, *_ in self.blocks:
+            out -= np.asarray(_LOG_JAC(jnp.asarray(x[:, idx].reshape(-1, K, K - 1))))
+        return out
+
+
+class CanonicalDE(emcee.moves.DEMove):
+    """emcee's differential-evolution move in the canonical coordinates of
+    :class:`CanonicalStyles`: the differences of two walkers' style blocks are differences of
+    what the likelihood sees, not of their orbit positions, and each walker keeps its own
+    rotation ``Q``. The acceptance ratio carries the map's volume change. Other arguments as
+    :class:`emcee.moves.DEMove`."""
+
+    def __init__(self, canonical: CanonicalStyles, **kwargs):
+        super().__init__(**kwargs)
+        self.canonical = canonical
+
+    def get_proposal(self, s, c, random):
+        can = self.canonical
+        ws, qs = can.split(s)
+        wc = [can.split(ci)[0] for ci in c]
+        qw, factors = super().get_proposal(ws, wc, random)
+        q, inside = can.merge(qw, qs)
+        change = (can.log_volume(qw) + can.log_stick(q)
+                  - can.log_volume(ws) - can.log_stick(np.asarray(s, dtype=np.float64)))
+        return q, np.where(inside, factors + change, -np.inf)

@@ -1,0 +1,110 @@
+"""CanonicalStyles: the LQ split of the style vectors is an exact inverse pair, and its volume
+term is the map's log-Jacobian (by finite differences of the full bijection)."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from bayesmotion.inference.moves import StyleShear, plane_basis
+from bayesmotion.inference.moves.canonical import CanonicalStyles, lq
+from bayesmotion.model.params import simplex_to_style, style_to_simplex
+
+K = 4
+IDX = np.arange(2, 2 + K * (K - 1))
+
+
+def random_states(n, rng):
+    """(n, 2 + K (K - 1)): two scales, then style vectors well inside the simplex."""
+    S = np.array([[rng.dirichlet(2.0 + 6.0 * np.eye(K)[k]) for k in range(K)]
+                  for _ in range(n)])
+    u = np.asarray(simplex_to_style(jnp.asarray(S))).reshape(n, -1)
+    return np.concatenate([rng.normal(size=(n, 2)), u], 1)
+
+
+@pytest.mark.parametrize("sheared", [False, True])
+def test_split_and_merge_are_inverse_and_split_is_the_lq_factor(sheared):
+    shear = (StyleShear({"e": IDX}, {"e": np.eye(K)[[0, 1, 2, 3, 0]]},
+                        [([0, 1], ["e"], np.array([3.0, 4, 5, 6, 7]))]) if sheared else None)
+    can = CanonicalStyles({"e": IDX, "two": np.array([0])}, shear)  # a 2-level factor: left alone
+    assert len(can.blocks) == 1
+    x = random_states(6, np.random.default_rng(0))
+    w, (Q,) = can.split(x)
+    back, inside = can.merge(w, [Q])
+    assert inside.all()
+    np.testing.assert_allclose(back, x, atol=1e-10)
+    np.testing.assert_allclose(Q @ np.swapaxes(Q, 1, 2), np.broadcast_to(np.eye(K - 1), Q.shape),
+                               atol=1e-12)
+    S = np.asarray(style_to_simplex(jnp.asarray(x[:, IDX].reshape(-1, K, K - 1))))
+    V = (S - 1.0 / K) @ plane_basis(K)
+    T, _ = lq(V)
+    # the free entries are T's lower trapezoid (log diagonal), the Gram is T T^T
+    np.testing.assert_allclose(T @ np.swapaxes(T, 1, 2), V @ np.swapaxes(V, 1, 2), atol=1e-12)
+    assert np.all(np.triu(T, 1) == 0) and np.all(np.diagonal(T, axis1=1, axis2=2) > 0)
+    np.testing.assert_allclose(w[:, IDX[0]], np.log(T[:, 0, 0]), rtol=1e-12)
+    assert np.all(w[:, IDX[9:]] == 0)
+    # everything else is the (sheared) input
+    y = x if shear is None else np.asarray(shear.forward(jnp.asarray(x)))
+    np.testing.assert_allclose(w[:, :2], y[:, :2], rtol=1e-12)
+    # a step that leaves the simplex is flagged
+    far = w.copy()
+    far[:, IDX[0]] += 5.0
+    assert not can.merge(far, [Q])[1].any()
+
+
+def test_volume_term_is_the_log_jacobian_of_the_full_bijection():
+    # (T's free entries, Q = Q0 expm(A(a))) -> stick coordinates is a bijection of 12 dimensions;
+    # at a = 0 its log |det| must be log_volume + log_stick up to one constant
+    can = CanonicalStyles({"e": IDX})
+    rng = np.random.default_rng(1)
+    x = random_states(5, rng)
+    w, (Q,) = can.split(x)
+    iu = np.triu_indices(K - 1, 1)
+
+    def forward(p, Q0):
+        a = np.zeros((K - 1, K - 1))
+        a[iu] = p[9:]
+        wt = np.zeros(2 + K * (K - 1))
+        wt[IDX[:9]] = p[:9]
+        xx, inside = can.merge(wt[None], [(Q0 @ expm(a - a.T))[None]])
+        assert inside.all()
+        return xx[0, IDX]
+
+    diffs = []
+    for i in range(len(x)):
+        p0 = np.concatenate([w[i, IDX[:9]], np.zeros(3)])
+        h = 1e-6
+        J = np.stack([(forward(p0 + h * e, Q[i]) - forward(p0 - h * e, Q[i])) / (2 * h)
+                      for e in np.eye(12)], 1)
+        logdet = np.linalg.slogdet(J)[1]
+        diffs.append(logdet - can.log_volume(w[i:i + 1])[0] - can.log_stick(x[i:i + 1])[0])
+    assert np.ptp(diffs) < 1e-6
+
+
+@pytest.mark.slow
+def test_default_sampler_with_canonical_de_agrees_with_nuts_on_three_emotions():
+    # the default moves on a model with a rotated (3-level) style factor: DE on the LQ factor,
+    # the rotations, the independence step; NUTS on the same potential is the reference
+    import warnings
+
+    import bayesmotion as bm
+    from bayesmotion.inference.diagnostics import compare_posteriors
+    from bayesmotion.inference.moves import CanonicalDE, StyleRotations
+    from bayesmotion.inference.posterior import ChainTooShortWarning
+    from bayesmotion.inference.proposals import default_moves
+    from bayesmotion.inference.target import Target
+
+    ds = bm.load_handshakes(fps=5.0).filter(couple="c1", emotion=["neutral", "happy", "sad"])
+    data = bm.MotionDataset(ds.trials, {"emotion": ("neutral", "happy", "sad"),
+                                        "couple": ("c1",)})
+    model = bm.HGPDM(latent_dim=2, interaction_dim=2).fit(data, max_iter=60, progress=False)
+    moves = default_moves(Target(model))
+    assert isinstance(moves, StyleRotations) and isinstance(moves.inner, CanonicalDE)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        e = bm.sample_posterior(model, n_steps=2500, progress=False, seed=0)
+        n = bm.sample_posterior(model, n_steps=400, method="nuts", n_chains=2, progress=False,
+                                seed=1)
+    cmp = compare_posteriors(e, n)
+    print("emcee vs NUTS: max |z| =", cmp["max_abs_z"], "max |z_sd| =", cmp["max_abs_z_sd"])
+    assert cmp["max_abs_z"] < 3.5 and cmp["max_abs_z_sd"] < 3.5
