@@ -108,3 +108,48 @@ def test_default_sampler_with_canonical_de_agrees_with_nuts_on_three_emotions():
     cmp = compare_posteriors(e, n)
     print("emcee vs NUTS: max |z| =", cmp["max_abs_z"], "max |z_sd| =", cmp["max_abs_z_sd"])
     assert cmp["max_abs_z"] < 3.5 and cmp["max_abs_z_sd"] < 3.5
+
+
+@pytest.mark.parametrize("reflect", [True, False])
+def test_reflections_let_canonical_de_reach_both_orientations(reflect):
+    # CanonicalDE keeps each walker's Q and the rotations have det 1, so the vectors'
+    # orientation in the plane (sign of det of the first K - 1 rows of V) can change only by the
+    # rotations' reflection sub-step; under a loose Dirichlet both orientations carry mass
+    import emcee
+
+    from bayesmotion.inference.moves import CanonicalDE, StyleRotations
+    from bayesmotion.model.params import log_dirichlet, style_log_jacobian
+
+    k = 3
+    conc = 1.0 + 0.5 * np.eye(k)
+    B = plane_basis(k)
+    rng = np.random.default_rng(0)
+    draws = np.array([[rng.dirichlet(conc[j]) for j in range(k)] for _ in range(20000)])
+
+    def positive(S):
+        return np.linalg.det(((S - 1.0 / k) @ B)[:, :k - 1]) > 0
+
+    want = positive(draws).mean()  # the prior's share of one orientation
+
+    def logp(xs):
+        u = jnp.asarray(xs).reshape(-1, k, k - 1)
+        S = np.asarray(style_to_simplex(u))
+        return np.asarray(jnp.sum(log_dirichlet(jnp.asarray(S), jnp.asarray(conc)), (-1,)),
+                          dtype=float) + np.array([float(style_log_jacobian(v)) for v in u])
+
+    idx = np.arange(k * (k - 1))
+    start = draws[:32][positive(draws[:32])][:16]  # every walker in one orientation
+    x0 = np.asarray(simplex_to_style(jnp.asarray(start))).reshape(len(start), -1)
+    moves = StyleRotations(CanonicalDE(CanonicalStyles({"e": idx})), {"e": idx}, {"e": conc},
+                           reflect=reflect)
+    sampler = emcee.EnsembleSampler(len(x0), idx.size, logp, vectorize=True, moves=moves)
+    sampler.random_state = np.random.RandomState(4).get_state()
+    sampler.run_mcmc(x0, 1500, progress=False)
+    S = np.asarray(style_to_simplex(jnp.asarray(sampler.get_chain(discard=300).reshape(
+        -1, k, k - 1))))
+    share = positive(S).mean()
+    if reflect:
+        assert 0.1 < want < 0.9 and abs(share - want) < 0.06
+        assert 0 < moves.reflection_acceptance < 1
+    else:  # the orientation never changes
+        assert share == 1.0

@@ -97,7 +97,7 @@ class CanonicalStyles:
 
     def merge(self, w, qs) -> tuple[np.ndarray, np.ndarray]:
         """Inverse of :meth:`split`: (x (m, d), inside (m,) bool). A row whose style vectors
-        leave the simplex is returned unchanged in its style blocks and marked outside."""
+        leave the simplex is marked outside, its style block set to the simplex's centre."""
         w = np.asarray(w, dtype=np.float64)
         y = np.array(w)
         inside = np.ones(len(w), dtype=bool)
@@ -111,8 +111,8 @@ class CanonicalStyles:
             S = np.where(ok[:, None, None], S, 1.0 / K)
             y[:, idx] = np.asarray(_TO_U(jnp.asarray(S)), dtype=np.float64).reshape(len(w), -1)
             inside &= ok
-        x = y if self.shear is None else np.asarray(self.shear.inverse(jnp.asarray(y)),
-                                                    dtype=np.float64)
+        x = y if self.shear is None else np.array(self.shear.inverse(jnp.asarray(y)),
+                                                  dtype=np.float64)
         return x, inside
 
     def log_volume(self, w) -> np.ndarray:
@@ -144,8 +144,9 @@ class CanonicalDE(emcee.moves.DEMove):
     """emcee's differential-evolution move in the canonical coordinates of
     :class:`CanonicalStyles`: the differences of two walkers' style blocks are differences of
     what the likelihood sees, not of their orbit positions, and each walker keeps its own
-    rotation ``Q``. The acceptance ratio carries the map's volume change. Other arguments as
-    :class:`emcee.moves.DEMove`."""
+    rotation ``Q`` (so its orientation, the sign of ``det Q``: the reflections of
+    :class:`bayesmotion.inference.moves.StyleRotations` change it). The acceptance ratio carries
+    the map's volume change. Other arguments as :class:`emcee.moves.DEMove`."""
 
     def __init__(self, canonical: CanonicalStyles, **kwargs):
         super().__init__(**kwargs)
@@ -156,7 +157,9 @@ class CanonicalDE(emcee.moves.DEMove):
         ws, qs = can.split(s)
         wc = [can.split(ci)[0] for ci in c]
         qw, factors = super().get_proposal(ws, wc, random)
+        s = np.asarray(s, dtype=np.float64)
         q, inside = can.merge(qw, qs)
         change = (can.log_volume(qw) + can.log_stick(q)
-                  - can.log_volume(ws) - can.log_stick(np.asarray(s, dtype=np.float64)))
+                  - can.log_volume(ws) - can.log_stick(s))
+        q[~inside] = s[~inside]  # rejected below; its density is the current one's, finite
         return q, np.where(inside, factors + change, -np.inf)

@@ -17,8 +17,10 @@ matrix (``R`` and ``R^-1`` equally likely). The map is linear and volume-preserv
 simplex's plane, so the acceptance ratio is the ratio of the posterior densities in simplex
 coordinates, which here is the ratio of the Dirichlet priors (the likelihood cancels). The new
 log-density is the old one plus the change of the style prior and of the stick-breaking
-Jacobian: no GP is evaluated. Detailed balance holds for each sub-step, so the composition
-with the inner move leaves the posterior invariant (tested against an exact Dirichlet target).
+Jacobian: no GP is evaluated. A last sub-step proposes a reflection instead (``det Q = -1``),
+so the orientation of the vectors in the plane is not fixed by the rotations. Detailed balance
+holds for each sub-step, so the composition with the inner move leaves the posterior invariant
+(tested against an exact Dirichlet target).
 """
 
 from __future__ import annotations
@@ -82,7 +84,15 @@ def plane_rotations(G: np.ndarray) -> np.ndarray:
 
 class StyleRotations(emcee.moves.Move):
     """Wraps an emcee move: after each of its steps, ``n_rotations`` Metropolis steps along the
-    style vectors' rotation orbits (see the module docstring), for every factor with >= 3 levels.
+    style vectors' rotation orbits (see the module docstring), for every factor with >= 3 levels,
+    then (``reflect``) one Metropolis step through a reflection.
+
+    The rotations have determinant 1, so they keep the orientation of the vectors in the plane
+    (the sign of the determinant of their first K - 1 rows); the reflection, ``S -> S H`` with
+    ``H = B (I - 2 v v^T) B^T + 1 1^T / K`` and ``v`` uniform on the plane's unit sphere, is its
+    own inverse and keeps the likelihood too (its acceptance ratio is the prior ratio), and
+    reaches the other orientation, which an inner move that keeps each walker's orientation
+    (:class:`bayesmotion.inference.moves.CanonicalDE`) cannot.
 
     Args:
         inner: the emcee move doing the real work (e.g. ``emcee.moves.DEMove()``).
@@ -90,20 +100,30 @@ class StyleRotations(emcee.moves.Move):
         concentration: factor -> (K, K) Dirichlet concentrations of the style prior.
         n_rotations: Metropolis sub-steps per step.
         scale: sd of the skew-symmetric generator's entries (radians, roughly).
+        reflect: add the reflection sub-step.
 
-    ``acceptance`` holds the fraction of accepted sub-steps so far. The acceptance fraction
-    emcee reports stays the inner move's.
+    ``acceptance`` holds the fraction of accepted rotation sub-steps so far,
+    ``reflection_acceptance`` that of the reflections. The acceptance fraction emcee reports
+    stays the inner move's.
     """
 
     def __init__(self, inner, slices: dict, concentration: dict, n_rotations: int = 10,
-                 scale: float = 0.15):
+                 scale: float = 0.15, reflect: bool = True):
         self.inner = inner
         self.n_rotations = int(n_rotations)
         self.scale = float(scale)
+        self.reflect = bool(reflect)
         self.blocks = [(np.asarray(slices[f]), np.asarray(concentration[f], dtype=float))
                        for f in slices if np.asarray(concentration[f]).shape[0] >= 3]
         self._tries = 0
         self._accepts = 0
+        self._reflect_tries = 0
+        self._reflect_accepts = 0
+
+    @property
+    def reflection_acceptance(self) -> float:
+        return (self._reflect_accepts / self._reflect_tries if self._reflect_tries
+                else float("nan"))
 
     @property
     def acceptance(self) -> float:
@@ -151,6 +171,20 @@ class StyleRotations(emcee.moves.Move):
             logp = np.where(take, logp_new, logp)
             self._tries += n
             self._accepts += int(take.sum())
+        if self.reflect:
+            v = random.randn(n, K - 1)
+            v /= np.linalg.norm(v, axis=1, keepdims=True)
+            B = plane_basis(K)
+            H = B @ (np.eye(K - 1) - 2 * v[:, :, None] * v[:, None, :]) @ B.T + 1.0 / K
+            S_new = S @ H
+            inside = np.all(S_new > 0, axis=(1, 2))
+            logp_new = np.where(inside, _log_prior_rows(np.where(inside[:, None, None],
+                                                                       S_new, S), conc),
+                                -np.inf)
+            take = logp_new - logp > np.log(random.rand(n))
+            S = np.where(take[:, None, None], S_new, S)
+            self._reflect_tries += n
+            self._reflect_accepts += int(take.sum())
         return S
 
 
