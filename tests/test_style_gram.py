@@ -86,3 +86,16 @@ def test_convergence_reports_the_gram_entries_r_hat_and_ess(tiny_model):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert np.all(emcee.autocorr.integrated_time(g.swapaxes(0, 1), quiet=True) > 10)
+
+
+def test_grams_of_a_long_chain_come_in_chunks_and_of_none_as_empty(tiny_model, monkeypatch):
+    import bayesmotion.inference.target as target_mod
+
+    target = Target(tiny_model)
+    xs = target.x0 + 0.2 * np.random.default_rng(3).normal(size=(7, target.ndim))
+    whole = style_grams(target, xs)["emotion"]
+    monkeypatch.setattr(target_mod, "GRAM_CHUNK", 3)
+    np.testing.assert_array_equal(style_grams(target, xs)["emotion"], whole)
+    assert style_grams(target, xs[:0])["emotion"].shape == (0, 2, 2)
+    names, vals = gram_entries(target, xs[:0])
+    assert len(names) == 3 and vals.shape == (0, 3)

@@ -188,16 +188,30 @@ def style_grams(target, xs) -> dict[str, np.ndarray]:
     keys = [k for k in target.unravel(jnp.asarray(target.x0)) if k.startswith(STYLE_PREFIX)]
     if not keys:
         return {}
+    fn = _GRAM_FNS.get(id(target))
+    if fn is None or fn[0] is not target:
 
-    def grams(x):
-        p = target.unravel(x)
-        out = {}
-        for k in keys:
-            S = style_to_simplex(p[k])
-            out[k[len(STYLE_PREFIX):]] = S @ S.T
-        return out
+        def grams(x):
+            p = target.unravel(x)
+            out = {}
+            for k in keys:
+                S = style_to_simplex(p[k])
+                out[k[len(STYLE_PREFIX):]] = S @ S.T
+            return out
 
-    return {f: np.asarray(g) for f, g in jax.jit(jax.vmap(grams))(jnp.asarray(xs)).items()}
+        fn = (target, jax.jit(jax.vmap(grams)))  # compiled once per target and chunk shape
+        _GRAM_FNS.clear()  # one target at a time: a run's diagnostics
+        _GRAM_FNS[id(target)] = fn
+    rows = xs if len(xs) else np.asarray(target.x0, dtype=np.float64)[None]
+    parts = [fn[1](jnp.asarray(rows[i:i + GRAM_CHUNK]))
+             for i in range(0, len(rows), GRAM_CHUNK)]
+    return {f: np.concatenate([np.asarray(p[f]) for p in parts])[:len(xs)] for f in parts[0]}
+
+
+GRAM_CHUNK = 8192
+"""Draws per call of the compiled Gram map in :func:`style_grams` (bounded memory on long
+chains)."""
+_GRAM_FNS: dict = {}
 
 
 def gram_entries(target, xs) -> tuple[list[str], np.ndarray]:
