@@ -118,6 +118,7 @@ def test_sample_posterior_rotates_style_vectors_and_keeps_log_density_exact(thre
         post = sample_posterior(three_emotion_model, n_steps=40, burn=10, thin=1, seed=0,
                                 progress=False)
     assert 0.05 < post.info["rotation_acceptance"] < 0.95
+    assert 0 <= post.info["reflection_acceptance"] < 1  # reported beside the rotations'
     # the default independence step ran, after its 10 adaptation steps, on every coordinate the
     # rotations do not move
     assert post.info["adapt_steps"] == 10 and 0.02 < post.info["independence_acceptance"] < 1

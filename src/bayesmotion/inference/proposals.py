@@ -192,8 +192,8 @@ def default_moves(target, hmc: bool = False, proposal=None):
 
 
 def move_stats(moves) -> dict:
-    """Acceptance of the style rotations, of the independence step and of the HMC blocks, in
-    the order they run (None where absent)."""
+    """Acceptance of the style rotations and their reflections, of the independence step and of
+    the HMC blocks, in the order they run (None where absent)."""
     found = {}
     stack = [moves]
     while stack:
@@ -202,6 +202,7 @@ def move_stats(moves) -> dict:
             stack.extend(reversed(m.moves))  # popped in the order they run
         elif isinstance(m, StyleRotations):
             found["rotation_acceptance"] = m.acceptance
+            found["reflection_acceptance"] = m.reflection_acceptance
             stack.append(m.inner)
         elif isinstance(m, EnsembleHMC):
             found.setdefault("hmc", []).append(m.acceptance)
@@ -209,6 +210,7 @@ def move_stats(moves) -> dict:
             found["independence_acceptance"] = m.acceptance
     hmc = found.get("hmc")
     return {"rotation_acceptance": found.get("rotation_acceptance"),
+            "reflection_acceptance": found.get("reflection_acceptance"),
             "independence_acceptance": found.get("independence_acceptance"),
             "hmc_acceptance": None if hmc is None else float(np.mean(hmc)),
             "hmc_block_acceptance": hmc}
@@ -219,7 +221,8 @@ def phase_stats(ran) -> dict:
     (None where no phase ran or the move is absent)."""
     stats = [(move_stats(m), n) for m, n in ran]
     out = {}
-    for key in ("rotation_acceptance", "independence_acceptance", "hmc_acceptance"):
+    for key in ("rotation_acceptance", "reflection_acceptance", "independence_acceptance",
+                "hmc_acceptance"):
         vals = [(s[key], n) for s, n in stats if s[key] is not None and np.isfinite(s[key])]
         out[key] = (float(sum(v * n for v, n in vals) / sum(n for _, n in vals))
                     if vals else None)
