@@ -1,5 +1,6 @@
 """Posterior convergence at the demo size: how many emcee steps give max R-hat <= 1.01 and min
-bulk ESS >= 400 over every sampled coordinate (the demo-size target of the Bayesian layer).
+bulk ESS >= 400 over every sampled coordinate and the style vectors' Gram entries (the
+demo-size target of the Bayesian layer).
 
 The demo's model: ``load_handshakes(fps=10)`` without the 4 held-out trials (20 trials, N = 340
 frames per actor), ``HGPDM().fit(max_iter=1000, seed=0)``; then ``sample_posterior`` with its
@@ -22,7 +23,9 @@ the target is first met at 6,000 steps (``["checkpoints"][10]``: max R-hat 1.010
 5,487; at 4,000 steps, ``["checkpoints"][8]``, R-hat is 1.012) and holds at 7,000
 (``["checkpoints"][11]``: 1.009 and 6,147, max tau 51). Worst coordinates
 (``["worst_coordinate_names"]``): log_alpha[4] and style:emotion[0, 0]. ``["seconds_per_step"]``
-0.78, over the steps sampled after ``["resumed_from_step"]``.
+0.78, over the steps sampled after ``["resumed_from_step"]``. That run counted the sampled
+coordinates only, not the Gram entries, which mix more slowly (``results/style_shear.json``,
+key ``identified``).
 """
 
 from __future__ import annotations
@@ -74,7 +77,8 @@ def demo_model(max_iter: int, cache: Path | None = None):
 
 # part of the cache key, so a chain run with other default moves or coordinates is not resumed:
 # edit it whenever sample_posterior's default moves or sampled coordinates change
-SAMPLER_VERSION = ("DE move (in the style shear's coordinates) followed by StyleRotations, then "
+SAMPLER_VERSION = ("DE move (in the style shear's coordinates, the rotated style vectors through "
+                   "their Gram's LQ factor) followed by StyleRotations, then "
                    "an IndependenceMove on the hyperparameters (Laplace proposal in the shear's "
                    "coordinates, adapted after 150 steps; a mixture with one component per "
                    "idle-factor mode)")
@@ -88,15 +92,21 @@ def _key(model) -> str:
     return h.hexdigest()[:12]
 
 
-def checkpoint(chain: np.ndarray, n: int, adapt: int = 0) -> dict:
+def checkpoint(chain: np.ndarray, n: int, adapt: int = 0, target=None) -> dict:
     """Diagnostics of the first ``n`` steps of an emcee chain (steps, walkers, ndim); the
-    burn-in covers the ``adapt`` steps of the independence move's adaptation."""
+    burn-in covers the ``adapt`` steps of the independence move's adaptation. With the chain's
+    ``target``, the style vectors' Gram entries (what the likelihood identifies of them,
+    ``bayesmotion.inference.target.gram_entries``) count beside the sampled coordinates, as in
+    ``sample_posterior``'s own diagnostics; their columns follow the coordinates'."""
     import arviz as az
     import emcee
 
     from bayesmotion.inference.posterior import burn_thin
+    from bayesmotion.inference.target import chain_gram
 
     head = chain[:n]
+    if target is not None:
+        head = np.concatenate([head, chain_gram(target, head)[1]], -1)
     with warnings.catch_warnings():  # short heads are expected; steps_over_max_tau says so
         warnings.simplefilter("ignore")
         tau = emcee.autocorr.integrated_time(head, quiet=True)
@@ -138,12 +148,15 @@ def run(quick: bool) -> dict:
     # a file that already held every step samples none: then this call timed no step
     new_steps = max(cfg["steps"] - resumed_from, 0)
     per_step = sample_s / new_steps if new_steps else None
-    points = [checkpoint(chain, n, adapt) for n in cfg["checkpoints"] if n <= chain.shape[0]]
+    points = [checkpoint(chain, n, adapt, post.target) for n in cfg["checkpoints"]
+              if n <= chain.shape[0]]
     for p in points:
         p["sampling_seconds_from_scratch"] = None if per_step is None else p["steps"] * per_step
     first = next((p for p in points if p["met"]), None)
     last = points[-1]
-    names = post.target.names
+    from bayesmotion.inference.target import gram_entries
+
+    names = post.target.names + gram_entries(post.target, chain[:1, 0])[0]
     out = {"settings": {**cfg, "model": "demo: load_handshakes(fps=10), 20 training trials, "
                         f"HGPDM().fit(max_iter={cfg['max_iter']}, seed=0)",
                         "sampler": "sample_posterior defaults: " + SAMPLER_VERSION
