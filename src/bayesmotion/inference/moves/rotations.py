@@ -162,13 +162,7 @@ class StyleRotations(emcee.moves.Move):
         logp = _log_prior_rows(S, conc)
         for _ in range(self.n_rotations):
             S_new = S @ plane_rotations(self.scale * random.randn(n, K - 1, K - 1))
-            inside = np.all(S_new > 0, axis=(1, 2))
-            logp_new = np.where(inside, _log_prior_rows(np.where(inside[:, None, None],
-                                                                       S_new, S), conc),
-                                -np.inf)
-            take = logp_new - logp > np.log(random.rand(n))
-            S = np.where(take[:, None, None], S_new, S)
-            logp = np.where(take, logp_new, logp)
+            S, logp, take = _prior_step(S, S_new, logp, conc, random)
             self._tries += n
             self._accepts += int(take.sum())
         if self.reflect:
@@ -176,16 +170,21 @@ class StyleRotations(emcee.moves.Move):
             v /= np.linalg.norm(v, axis=1, keepdims=True)
             B = plane_basis(K)
             H = B @ (np.eye(K - 1) - 2 * v[:, :, None] * v[:, None, :]) @ B.T + 1.0 / K
-            S_new = S @ H
-            inside = np.all(S_new > 0, axis=(1, 2))
-            logp_new = np.where(inside, _log_prior_rows(np.where(inside[:, None, None],
-                                                                       S_new, S), conc),
-                                -np.inf)
-            take = logp_new - logp > np.log(random.rand(n))
-            S = np.where(take[:, None, None], S_new, S)
+            S, logp, take = _prior_step(S, S @ H, logp, conc, random)
             self._reflect_tries += n
             self._reflect_accepts += int(take.sum())
         return S
+
+
+def _prior_step(S, S_new, logp, conc, random):
+    """One Metropolis step S -> S_new (W, K, K) of a likelihood-preserving proposal, accepted by
+    the Dirichlet prior ratio (``logp``: the current (W,) log-priors); a proposal leaving the
+    simplex is rejected. Returns (S, logp, accepted)."""
+    inside = np.all(S_new > 0, axis=(1, 2))
+    logp_new = np.where(inside, _log_prior_rows(np.where(inside[:, None, None], S_new, S),
+                                                conc), -np.inf)
+    take = logp_new - logp > np.log(random.rand(len(S)))
+    return (np.where(take[:, None, None], S_new, S), np.where(take, logp_new, logp), take)
 
 
 def _log_prior_rows(S, conc) -> np.ndarray:
