@@ -14,17 +14,15 @@ style coordinates is mostly a difference of orientation; differences of their ``
 from __future__ import annotations
 
 import emcee
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bayesmotion.inference.moves.rotations import plane_basis
-from bayesmotion.model.params import simplex_to_style, style_log_jacobian, style_to_simplex
-
-# over walkers, compiled once per shape
-_TO_S = jax.jit(jax.vmap(style_to_simplex))
-_TO_U = jax.jit(jax.vmap(simplex_to_style))
-_LOG_JAC = jax.jit(jax.vmap(style_log_jacobian))
+from bayesmotion.inference.moves.rotations import (
+    STICK_LOG_JACOBIAN,
+    TO_SIMPLEX,
+    TO_STICKS,
+    plane_basis,
+)
 
 
 def _tri_index(K: int):
@@ -86,7 +84,8 @@ class CanonicalStyles:
              else np.array(self.shear.forward(jnp.asarray(x)), dtype=np.float64))
         qs = []
         for idx, K, B, (rows, cols, diag) in self.blocks:
-            S = np.asarray(_TO_S(jnp.asarray(w[:, idx].reshape(-1, K, K - 1))), dtype=np.float64)
+            u = jnp.asarray(w[:, idx].reshape(-1, K, K - 1))
+            S = np.asarray(TO_SIMPLEX(u), dtype=np.float64)
             T, Q = lq((S - 1.0 / K) @ B)
             vals = T[:, rows, cols]
             vals[:, diag] = np.log(vals[:, diag])
@@ -109,7 +108,7 @@ class CanonicalStyles:
             S = (T @ Q) @ B.T + 1.0 / K
             ok = np.all(S > 0, axis=(1, 2))
             S = np.where(ok[:, None, None], S, 1.0 / K)
-            y[:, idx] = np.asarray(_TO_U(jnp.asarray(S)), dtype=np.float64).reshape(len(w), -1)
+            y[:, idx] = np.asarray(TO_STICKS(jnp.asarray(S)), dtype=np.float64).reshape(len(w), -1)
             inside &= ok
         x = y if self.shear is None else np.array(self.shear.inverse(jnp.asarray(y)),
                                                   dtype=np.float64)
@@ -136,7 +135,7 @@ class CanonicalStyles:
         x = np.asarray(x, dtype=np.float64)
         out = np.zeros(len(x))
         for idx, K, *_ in self.blocks:
-            out -= np.asarray(_LOG_JAC(jnp.asarray(x[:, idx].reshape(-1, K, K - 1))))
+            out -= np.asarray(STICK_LOG_JACOBIAN(jnp.asarray(x[:, idx].reshape(-1, K, K - 1))))
         return out
 
 

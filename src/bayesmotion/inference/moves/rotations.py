@@ -40,13 +40,13 @@ from bayesmotion.model.params import (
 )
 
 # over walkers, compiled once per shape (not per sampler)
-_TO_S = jax.jit(jax.vmap(style_to_simplex))
+TO_SIMPLEX = jax.jit(jax.vmap(style_to_simplex))
 
 
-_TO_U = jax.jit(jax.vmap(simplex_to_style))
+TO_STICKS = jax.jit(jax.vmap(simplex_to_style))
 
 
-_LOG_JAC = jax.jit(jax.vmap(style_log_jacobian))
+STICK_LOG_JACOBIAN = jax.jit(jax.vmap(style_log_jacobian))
 
 
 def style_slices(unravel, x0) -> dict[str, np.ndarray]:
@@ -141,15 +141,15 @@ class StyleRotations(emcee.moves.Move):
             u = coords[ok][:, idx].reshape(-1, K, K - 1)
             if not len(u):
                 continue
-            S0 = np.asarray(_TO_S(jnp.asarray(u)), dtype=float)
+            S0 = np.asarray(TO_SIMPLEX(jnp.asarray(u)), dtype=float)
             S = self._rotate(S0, conc, model.random)
             moved = np.any(S != S0, axis=(1, 2))
             if not moved.any():
                 continue
-            u_new = np.asarray(_TO_U(jnp.asarray(S)), dtype=float)
+            u_new = np.asarray(TO_STICKS(jnp.asarray(S)), dtype=float)
             change = (_log_prior_rows(S, conc) - _log_prior_rows(S0, conc)
-                      + np.asarray(_LOG_JAC(jnp.asarray(u_new)))
-                      - np.asarray(_LOG_JAC(jnp.asarray(u))))
+                      + np.asarray(STICK_LOG_JACOBIAN(jnp.asarray(u_new)))
+                      - np.asarray(STICK_LOG_JACOBIAN(jnp.asarray(u))))
             rows = np.flatnonzero(ok)[moved]
             coords[np.ix_(rows, idx)] = u_new[moved].reshape(len(rows), -1)
             log_prob[rows] += change[moved]
