@@ -13,6 +13,13 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 # a folder of its own, so they neither read nor fill the user's cache.
 os.environ["BAYESMOTION_COMPILE_CACHE"] = "off"
 
+# The test modules import arviz; two workers importing it for the first time on one day race on
+# its daily stamp file. import_arviz survives that race, so each worker imports arviz through it
+# before any test module does.
+from bayesmotion.inference.diagnostics import import_arviz  # noqa: E402
+
+import_arviz()
+
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CMU_DIR = SHARED / "cmu-handshake"
 BANDAI_DIR = SHARED / "bandai-emotion"

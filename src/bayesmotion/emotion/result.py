@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesmotion.errors import BayesmotionError
+from bayesmotion.inference.diagnostics import import_arviz
 
 
 def top_level(probabilities, tie_break=None) -> int:
@@ -230,7 +231,7 @@ class EmotionPosterior:
 
     @property
     def idata(self):
-        import arviz as az
+        az = import_arviz()
 
         if self._idata is None:
             post = {"emotion": self.samples}

@@ -10,6 +10,35 @@ import numpy as np
 from bayesmotion.data.files import atomic_path
 from bayesmotion.inference.target import chain_gram
 
+_ARVIZ_NOTICE = r"\s*ArviZ is undergoing a major refactor"
+
+
+def import_arviz():
+    """Import arviz and return it, safe when several processes import it at once.
+
+    arviz 0.2x writes a once-a-day stamp file (under the user's cache folder) on import through
+    one fixed temporary name, so two processes importing it for the first time that day (two
+    test workers, two jobs of a batch) can race: one renames the other's temporary file away and
+    the import fails with ``FileNotFoundError``. The stamp is written by then, so importing again
+    succeeds; that one retry is all this adds. The import's notice of arviz 1.0 is not shown:
+    bayesmotion requires arviz < 1.0, so the announced changes do not reach its users.
+    """
+    import sys
+
+    for attempt in range(2):
+        try:
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message=_ARVIZ_NOTICE, category=FutureWarning)
+                warnings.filterwarnings("ignore", message=_ARVIZ_NOTICE, category=UserWarning)
+                import arviz
+            return arviz
+        except FileNotFoundError as err:
+            if attempt or "daily_warning" not in str(err):
+                raise
+            for name in [m for m in sys.modules if m == "arviz" or m.startswith("arviz.")]:
+                del sys.modules[name]
+    raise AssertionError("unreachable")
+
 
 def _dims(model) -> tuple[dict, dict]:
     o = model.spec.order
@@ -35,7 +64,7 @@ def _dims(model) -> tuple[dict, dict]:
 def to_inference_data(post):
     """arviz InferenceData: posterior (chain = walker for emcee), sample_stats (lp,
     acceptance), observed_data (training poses per actor)."""
-    import arviz as az
+    az = import_arviz()
 
     coords, dims = _dims(post.model)
     C, D = post.chains.shape[:2]
@@ -72,7 +101,7 @@ def save_netcdf(idata, path) -> str:
 def _theta(x):
     """arviz Dataset of (chains, draws, ndim) draws; emcee has more walkers than draws, a shape
     arviz warns about, so that one warning is silenced here."""
-    import arviz as az
+    az = import_arviz()
 
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="More chains")
@@ -85,6 +114,7 @@ def arviz_without_numba():
     of ``mcse(method="sd")`` (also inside ``az.summary``) fails under numpy >= 2.5: "only
     0-dimensional arrays can be converted to Python scalars" (seen with arviz 0.23.4, numpy
     2.5.2, numba installed). The flag is restored afterwards."""
+    import_arviz()
     from arviz.utils import Numba
 
     was = Numba.numba_flag
@@ -106,7 +136,7 @@ def compare_posteriors(a, b, var_names=None) -> dict:
     Returns:
         dict with per-coordinate arrays and ``max_abs_z``, ``max_abs_z_sd``, ``max_rhat``.
     """
-    import arviz as az
+    az = import_arviz()
 
     ca, names = with_gram(a)
     cb, _ = with_gram(b)
@@ -151,7 +181,7 @@ def convergence(post) -> dict:
     style vectors' Gram entries (:func:`bayesmotion.inference.target.gram_entries`, what
     the likelihood identifies of them; the style rotations leave them unchanged, so the
     vectors' own coordinates can look mixed while these are not)."""
-    import arviz as az
+    az = import_arviz()
 
     d = _theta(with_gram(post)[0])
     with arviz_without_numba():

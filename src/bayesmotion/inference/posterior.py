@@ -34,7 +34,12 @@ import numpy as np
 from scipy.special import ndtri
 
 from bayesmotion.errors import BayesmotionError, warn
-from bayesmotion.inference.diagnostics import arviz_without_numba, save_netcdf, to_inference_data
+from bayesmotion.inference.diagnostics import (
+    arviz_without_numba,
+    import_arviz,
+    save_netcdf,
+    to_inference_data,
+)
 from bayesmotion.inference.predictive import generate_posterior
 from bayesmotion.inference.target import Target, chain_gram
 from bayesmotion.model.generate import SAMPLE_MEMORY
@@ -101,19 +106,19 @@ class Posterior:
 
     def summary(self, **kwargs):
         """arviz summary (mean, sd, HDI, MCSE, bulk/tail ESS, R-hat) of constrained values."""
-        import arviz as az
+        az = import_arviz()
 
 
         with arviz_without_numba():
             return az.summary(self.idata, **kwargs)
 
     def plot_trace(self, var_names=None, **kwargs):
-        import arviz as az
+        az = import_arviz()
 
         return az.plot_trace(self.idata, var_names=var_names, **kwargs)
 
     def plot_pair(self, var_names=("gamma", "beta", "alpha"), **kwargs):
-        import arviz as az
+        az = import_arviz()
 
         return az.plot_pair(self.idata, var_names=list(var_names), **kwargs)
 

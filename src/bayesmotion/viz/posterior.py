@@ -18,7 +18,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from bayesmotion.errors import BayesmotionError
-from bayesmotion.inference.diagnostics import arviz_without_numba
+from bayesmotion.inference.diagnostics import arviz_without_numba, import_arviz
 from bayesmotion.viz.plots import save_figure
 
 SCALES = ("gamma", "beta", "alpha")
@@ -32,7 +32,7 @@ def coordinate_table(post, var_names: Sequence[str] | None = None) -> list[dict]
     """One entry per scalar coordinate: ``name`` (e.g. ``gamma1_signal``), ``var``,
     ``draws`` (chains, draws), ``log`` (drawn on a log axis), ``rhat``, ``ess_bulk``,
     ``ess_tail``."""
-    import arviz as az
+    az = import_arviz()
 
     ds = post.idata.posterior
     wanted = list(var_names or ("gamma", "beta", "alpha", "ar"))
