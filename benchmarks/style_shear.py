@@ -1,4 +1,4 @@
-"""Mixing per step of the default emcee sampler with and without the style shear
+"""Mixing per step of the default emcee sampler against the samplers before it: the style shear
 (``bayesmotion.inference.moves.shear``) and the canonical style coordinates
 (``bayesmotion.inference.moves.canonical``), same model, same seeds, same run.
 
@@ -8,9 +8,12 @@ when it is there): the demo-size posterior, 26 coordinates, 54 walkers. Each sam
 ``sample_posterior``'s defaults for ``steps`` steps per seed:
 
 * ``default``: differential evolution and the independence step propose in coordinates where
-  the output scales' logs carry the log mean style diagonal, and DE moves the rotated style
-  vectors through their Gram matrix's LQ factor (``CanonicalDE``);
-* ``sheared``: the same without the canonical coordinates (``ShearedDE``);
+  the output scales' logs carry the log mean style diagonal; DE moves the rotated style vectors
+  through their Gram matrix's LQ factor ``T``, each walker keeping the rotation left over after
+  the one that aligns ``T`` with the simplex's vertices (``CanonicalDE``); after the adaptation
+  the independence step draws ``T`` with the hyperparameters (``CanonicalIndependence``);
+* ``canonical_de``: the same with the rotation ``Q`` kept unaligned and the independence step
+  on the hyperparameters alone, in the shear's coordinates;
 * ``previous``: the same moves in the sampled coordinates (``StyleShear.for_target`` patched to
   find no shear, no canonical coordinates), i.e. the sampler before either.
 
@@ -19,7 +22,7 @@ step's adaptation, 150 steps): per-coordinate integrated autocorrelation time (e
 R-hat and min bulk ESS over the 26 sampled coordinates (arviz, each walker a chain), and the same
 over what the likelihood identifies (key ``identified``): the hyperparameters and the style
 vectors' Gram entries, which the style rotations leave unchanged. Mixing is measured as the
-slowest one's bulk ESS per step, against a target of 4 times the unsheared sampler's.
+slowest one's bulk ESS per step, against a target of 4 times the ``previous`` sampler's.
 
 Current result (``results/style_shear.json``): see ``["headline"]`` and ``docs/results.md``.
 """
@@ -80,21 +83,25 @@ def chain_stats(chain: np.ndarray, names: list[str], target=None) -> dict:
     return out
 
 
-VARIANTS = ("previous", "sheared", "default")
+VARIANTS = ("previous", "canonical_de", "default")
 
 
 def sample(model, steps: int, seed: int, variant: str) -> dict:
     import emcee
 
-    from bayesmotion.inference import proposals
+    from bayesmotion.inference import emcee_runner, proposals
     from bayesmotion.inference.moves import shear as shear_mod
     from bayesmotion.inference.sample import sample_posterior
 
     found, canonical = shear_mod.StyleShear.for_target, proposals.CanonicalStyles
+    independence = emcee_runner.CANONICAL_INDEPENDENCE
     if variant == "previous":
         shear_mod.StyleShear.for_target = classmethod(lambda cls, target: None)
-    if variant != "default":  # no factor in canonical coordinates
         proposals.CanonicalStyles = lambda slices, shear: canonical({}, shear)
+        emcee_runner.CANONICAL_INDEPENDENCE = False
+    if variant == "canonical_de":
+        proposals.CanonicalStyles = lambda slices, shear: canonical(slices, shear, align=False)
+        emcee_runner.CANONICAL_INDEPENDENCE = False
     try:
         with tempfile.TemporaryDirectory() as tmp:
             path = str(Path(tmp) / "chain.h5")
@@ -108,6 +115,7 @@ def sample(model, steps: int, seed: int, variant: str) -> dict:
     finally:
         shear_mod.StyleShear.for_target = found
         proposals.CanonicalStyles = canonical
+        emcee_runner.CANONICAL_INDEPENDENCE = independence
     return {"seed": seed, "steps": steps, "seconds": seconds,
             "seconds_per_step": post.info["pace"]["seconds_per_step"],
             "independence_acceptance": post.info.get("independence_acceptance"),
@@ -140,11 +148,12 @@ def run(quick: bool) -> dict:
                         "n_walkers": 54, "ndim": 26},
            "fit_or_load_seconds": fit_s, "samplers": rows,
            "min_ess_per_step_ratio": {f"{a}/{b}": ratio(a, b) for a, b in
-                                      (("default", "previous"), ("sheared", "previous"),
-                                       ("default", "sheared"))},
+                                      (("default", "previous"), ("canonical_de", "previous"),
+                                       ("default", "canonical_de"))},
            "identified_min_ess_per_step_ratio": {
                f"{a}/{b}": ratio(a, b, "identified") for a, b in
-               (("default", "previous"), ("sheared", "previous"), ("default", "sheared"))}}
+               (("default", "previous"), ("canonical_de", "previous"),
+                ("default", "canonical_de"))}}
 
     def note(name, part=None):
         return (f"max tau {mean(name, 'max_tau', part):.1f} (mean "
@@ -153,8 +162,10 @@ def run(quick: bool) -> dict:
                 f"per step; mean of seeds {list(cfg['seeds'])}, {cfg['steps']} steps, "
                 f"burn {BURN}")
 
-    label = {"default": "default sampler (canonical style coordinates, style shear)",
-             "sheared": "style shear alone", "previous": "neither (the sampler before both)"}
+    label = {"default": "default sampler (aligned canonical coordinates in DE and the "
+                        "independence step, style shear)",
+             "canonical_de": "unaligned canonical coordinates in DE only, style shear",
+             "previous": "neither (no canonical coordinates, no shear)"}
     out["headline"] = []
     for part, what in ((None, "sampled coordinates"),
                        ("identified", "identified quantities (hyperparameters and style Gram "
@@ -166,8 +177,8 @@ def run(quick: bool) -> dict:
                 note(name, part)))
         r = ratio("default", "previous", part)
         out["headline"].append(headline("  ratio, default / neither", r, "x", ">= 4", r >= 4,
-                                        f"default / shear alone "
-                                        f"{ratio('default', 'sheared', part):.2f}x"))
+                                        f"default / canonical DE only "
+                                        f"{ratio('default', 'canonical_de', part):.2f}x"))
     return out
 
 

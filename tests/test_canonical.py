@@ -110,9 +110,9 @@ def test_default_sampler_with_canonical_de_agrees_with_nuts_on_three_emotions():
     assert cmp["max_abs_z"] < 3.5 and cmp["max_abs_z_sd"] < 3.5
 
 
-@pytest.mark.parametrize("reflect", [True, False])
-def test_reflections_let_canonical_de_reach_both_orientations(reflect):
-    # CanonicalDE keeps each walker's Q and the rotations have det 1, so the vectors'
+@pytest.mark.parametrize(("reflect", "align"), [(True, True), (True, False), (False, False)])
+def test_reflections_let_canonical_de_reach_both_orientations(reflect, align):
+    # unaligned, CanonicalDE keeps each walker's Q and the rotations have det 1, so the vectors'
     # orientation in the plane (sign of det of the first K - 1 rows of V) can change only by the
     # rotations' reflection sub-step; under a loose Dirichlet both orientations carry mass
     import emcee
@@ -140,8 +140,8 @@ def test_reflections_let_canonical_de_reach_both_orientations(reflect):
     idx = np.arange(k * (k - 1))
     start = draws[:32][positive(draws[:32])][:16]  # every walker in one orientation
     x0 = np.asarray(simplex_to_style(jnp.asarray(start))).reshape(len(start), -1)
-    moves = StyleRotations(CanonicalDE(CanonicalStyles({"e": idx})), {"e": idx}, {"e": conc},
-                           reflect=reflect)
+    moves = StyleRotations(CanonicalDE(CanonicalStyles({"e": idx}, align=align)), {"e": idx},
+                           {"e": conc}, reflect=reflect)
     sampler = emcee.EnsembleSampler(len(x0), idx.size, logp, vectorize=True, moves=moves)
     sampler.random_state = np.random.RandomState(4).get_state()
     sampler.run_mcmc(x0, 1500, progress=False)
@@ -153,3 +153,113 @@ def test_reflections_let_canonical_de_reach_both_orientations(reflect):
         assert 0 < moves.reflection_acceptance < 1
     else:  # the orientation never changes
         assert share == 1.0
+
+
+@pytest.mark.parametrize("align", [False, True])
+def test_aligned_split_is_an_inverse_pair_that_keeps_the_gram_factor(align):
+    can = CanonicalStyles({"e": IDX}, align=align)
+    plain = CanonicalStyles({"e": IDX}, align=False)
+    x = random_states(8, np.random.default_rng(3))
+    w, (R,) = can.split(x)
+    back, inside = can.merge(w, [R])
+    assert inside.all()
+    np.testing.assert_allclose(back, x, atol=1e-10)
+    np.testing.assert_allclose(w, plain.split(x)[0], atol=1e-12)  # the same T either way
+    if align:  # vectors near their own vertices: R, the rotation left over, is near the identity
+        assert np.trace(R, axis1=1, axis2=2).min() > 0.8 * (K - 1)
+
+
+def _gram(S):
+    iu = np.triu_indices(S.shape[-1])
+    return (S @ np.swapaxes(S, -1, -2))[..., iu[0], iu[1]]
+
+
+@pytest.mark.parametrize(("align", "volume"), [(True, True), (False, True), (True, False)])
+def test_canonical_independence_keeps_an_exact_posterior(align, volume):
+    # a Dirichlet prior times a likelihood of the Gram entries (what the GP layers see of the
+    # style vectors); exact draws by rejection from the prior. Walkers started at exact draws
+    # must stay exact under CanonicalIndependence with the rotations; without the map's volume
+    # change in the ratio they drift (the check can fail)
+    import emcee
+    import jax
+
+    from bayesmotion.inference.moves import CanonicalIndependence, StyleRotations
+    from bayesmotion.model.params import log_dirichlet, style_log_jacobian
+
+    k, n = 4, 3000
+    conc = 1.0 + 0.5 * np.eye(k)
+    rng = np.random.default_rng(0)
+    prior = _gram(np.stack([rng.dirichlet(conc[j], size=20000) for j in range(k)], 1))
+    m, sig = prior.mean(0), prior.std(0)
+
+    def loglik(S):
+        return -0.5 * np.sum(((_gram(S) - m) / sig) ** 2, -1)
+
+    found = []
+    while sum(len(f) for f in found) < 2 * n:
+        D = np.stack([rng.dirichlet(conc[j], size=200000) for j in range(k)], 1)
+        found.append(D[np.log(rng.uniform(size=len(D))) < loglik(D)])
+    exact = np.concatenate(found)[:2 * n]
+    jac = jax.jit(jax.vmap(style_log_jacobian))
+
+    def logp(xs):
+        u = jnp.asarray(xs).reshape(-1, k, k - 1)
+        S = np.asarray(style_to_simplex(u))
+        return (np.asarray(jnp.sum(log_dirichlet(jnp.asarray(S), jnp.asarray(conc)), -1))
+                + np.asarray(jac(u)) + loglik(S))
+
+    idx = np.arange(k * (k - 1))
+    can = CanonicalStyles({"e": idx}, align=align)
+    x = np.asarray(simplex_to_style(jnp.asarray(exact))).reshape(len(exact), -1)
+    block = can.slots()
+    w = can.split(x[:n])[0][:, block]  # the proposal: moments of other exact draws
+    if not volume:
+        can.change = lambda w0, *rest: np.zeros(len(w0))
+    move = StyleRotations(CanonicalIndependence(can, block, w.mean(0), 1.2 * np.cov(w.T)),
+                          {"e": idx}, {"e": conc}, reflect=True)
+    sampler = emcee.EnsembleSampler(n, idx.size, logp, vectorize=True, moves=move)
+    sampler.random_state = np.random.RandomState(1).get_state()
+    sampler.run_mcmc(x[n:], 20, progress=False)
+    g = _gram(np.asarray(style_to_simplex(jnp.asarray(
+        sampler.get_last_sample().coords.reshape(-1, k, k - 1)))))
+    ref = _gram(exact[:n])
+    z = (g.mean(0) - ref.mean(0)) / np.sqrt((g.var(0) + ref.var(0)) / n)
+    accepted = move.inner.acceptance
+    print(f"align={align} volume={volume}: acceptance {accepted:.3f}, "
+          f"max |z| {np.abs(z).max():.1f}")
+    assert 0.03 < accepted < 0.5  # enough fresh draws for a drift to show
+    if volume:
+        assert np.abs(z).max() < 4.0
+    else:
+        assert np.abs(z).max() > 10.0
+
+
+def test_canonical_mixture_takes_moments_in_canonical_coordinates():
+    # the proposal after the adaptation: the moments of the states' canonical coordinates over
+    # the block (hyperparameters and the Gram factor's entries); a mode with too few states gets
+    # its Laplace approximation carried through the map's Jacobian
+    from bayesmotion.inference.proposals import canonical_block, canonical_mixture
+
+    rng = np.random.default_rng(5)
+    can = CanonicalStyles({"e": IDX})
+    x0 = random_states(1, rng)[0]
+    A = rng.normal(size=(x0.size, x0.size))
+    cov = 1e-4 * (A @ A.T / x0.size + np.eye(x0.size))
+    modes = [{"x": x0, "cov": cov, "weight": 1.0}]
+    block = np.array([0, 1])  # the coordinates that are not rotated style vectors
+    cb = canonical_block(can, block)
+    assert cb.tolist() == [0, 1, *IDX[:9].tolist()]
+    assert can.slot_names()[:2] == ["log T:e[0, 0]", "T:e[1, 0]"]
+    z = rng.multivariate_normal(x0, cov, size=400)
+    got_block, mean, c, weights = canonical_mixture(can, block, modes, z)
+    w = can.split(z)[0][:, cb]
+    assert got_block.tolist() == cb.tolist() and weights is None
+    np.testing.assert_allclose(mean, w.mean(0), atol=1e-12)
+    np.testing.assert_allclose(c, np.cov(w.T), rtol=1e-6, atol=1e-14)
+    # too few states: the Laplace covariance, linearised, against many mapped draws
+    _, mean2, c2, _ = canonical_mixture(can, block, modes, z[:5])
+    many = can.split(rng.multivariate_normal(x0, cov, size=200000))[0][:, cb]
+    np.testing.assert_allclose(mean2, can.split(x0[None])[0][0, cb], atol=1e-12)
+    sd = np.sqrt(np.diag(np.cov(many.T)))
+    np.testing.assert_allclose(np.sqrt(np.diag(c2)), sd, rtol=0.05)
+    np.testing.assert_allclose(c2 / np.outer(sd, sd), np.corrcoef(many.T), atol=0.05)

@@ -17,10 +17,12 @@ from bayesmotion.inference.chainfile import (
     h5_errors,
     open_h5,
 )
-from bayesmotion.inference.moves import StyleShear
+from bayesmotion.inference.moves import CanonicalStyles, StyleShear, style_slices
 from bayesmotion.inference.posterior import format_seconds, posterior_from_chain
 from bayesmotion.inference.proposals import (
     adapt_steps,
+    canonical_block,
+    canonical_mixture,
     default_moves,
     idle_factor_modes,
     independence_block,
@@ -30,6 +32,10 @@ from bayesmotion.inference.proposals import (
     sheared_modes,
 )
 from bayesmotion.inference.target import Target, in_halves, start_points
+
+CANONICAL_INDEPENDENCE = True
+"""After the adaptation, the independence step draws the rotated style vectors' Gram factors
+(canonical coordinates) with the hyperparameters."""
 
 
 def _n_walkers(n_walkers, ndim) -> int:
@@ -141,11 +147,16 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         shear = StyleShear.for_target(target)
         modes = idle_factor_modes(target, centre, cov, block)  # info reports them as found
         proposal_modes = sheared_modes(modes, shear)
+        canonical = CanonicalStyles(style_slices(target.unravel, target.x0)
+                                    if hasattr(target, "unravel") else {}, shear)
 
         def phase_moves(first: bool):
             if first:
                 return default_moves(target, hmc, mixture_proposal(block, proposal_modes))
             z = be.get_chain()[n_adapt // 3:n_adapt].reshape(-1, target.ndim)
+            if CANONICAL_INDEPENDENCE and canonical.blocks:
+                proposal = canonical_mixture(canonical, block, modes, z, proposal_modes)
+                return default_moves(target, hmc, proposal, canonical_proposal=True)
             if shear is not None:
                 z = in_halves(shear.forward, z, W)
             return default_moves(target, hmc, mixture_proposal(block, proposal_modes,
@@ -188,6 +199,11 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         names = getattr(target, "names", None)  # a bare target has indices only
         info["independence_block"] = ([names[i] for i in block] if names is not None
                                       else block.tolist())
+        if CANONICAL_INDEPENDENCE and canonical.blocks:  # the block after the adaptation
+            slots = dict(zip(canonical.slots().tolist(), canonical.slot_names(), strict=True))
+            info["independence_block_sampling"] = [
+                slots.get(i, names[i] if names is not None else i)
+                for i in canonical_block(canonical, block).tolist()]
         info["modes"] = [{"weight": m["weight"], "logp": m["logp"],
                           "log_evidence": m["log_evidence"], "searched_from": m["searched_from"],
                           "x": m["x"].tolist()} for m in modes]

@@ -9,6 +9,7 @@ import numpy as np
 
 from bayesmotion.inference.moves import (
     CanonicalDE,
+    CanonicalIndependence,
     CanonicalStyles,
     EnsembleHMC,
     IndependenceMove,
@@ -121,6 +122,14 @@ def sheared_modes(modes: list[dict], shear) -> list[dict]:
     return out
 
 
+def nearest_mode(block, modes, z) -> np.ndarray:
+    """Index of the mode (:func:`idle_factor_modes`) nearest each row of ``z`` (block
+    coordinates), by Mahalanobis distance under the mode's Laplace covariance."""
+    d2 = np.array([np.sum(np.linalg.solve(np.linalg.cholesky(m["cov"][np.ix_(block, block)]),
+                                          (z - m["x"][block]).T) ** 2, 0) for m in modes])
+    return d2.argmin(0)
+
+
 def mixture_proposal(block, modes, z=None):
     """(block, means, covs, weights) of the independence move: each mode's Laplace
     approximation; with ``z`` (adaptation states, block coordinates), each mode's sample
@@ -129,20 +138,60 @@ def mixture_proposal(block, modes, z=None):
     means = np.array([m["x"][block] for m in modes])
     covs = np.array([m["cov"][np.ix_(block, block)] for m in modes])
     if z is not None:
-        d2 = np.array([np.sum(np.linalg.solve(np.linalg.cholesky(c), (z - mu).T) ** 2, 0)
-                       for mu, c in zip(means, covs, strict=True)])
-        near = d2.argmin(0)
+        near = nearest_mode(block, modes, z)
         for i in range(len(modes)):
             zi = z[near == i]
             if len(zi) >= 2 * (block.size + 1):
                 means[i], covs[i] = zi.mean(0), _pooled_cov(zi)
+    return _proposal(block, means, covs, modes)
+
+
+def _proposal(block, means, covs, modes):
     w = np.maximum([m["weight"] for m in modes], 0.05)
     if len(modes) == 1:
         return block, means[0], covs[0], None
     return block, means, covs, w / w.sum()
 
 
-def default_moves(target, hmc: bool = False, proposal=None):
+def canonical_block(canonical, block) -> np.ndarray:
+    """The independence block in the canonical coordinates of ``canonical`` (a
+    :class:`bayesmotion.inference.moves.CanonicalStyles`): ``block`` without the style
+    coordinates of its factors, plus each factor's Gram-factor entries (``T``)."""
+    styles = set(canonical.styles().tolist())
+    return np.array(sorted([int(i) for i in block if int(i) not in styles]
+                           + canonical.slots().tolist()), dtype=int)
+
+
+def canonical_mixture(canonical, block, modes, z, sheared=None):
+    """:func:`mixture_proposal` in canonical coordinates over :func:`canonical_block`: the
+    adaptation states ``z`` (model coordinates, rows) are split between the modes as there (in
+    ``sheared``: the modes in the shear's coordinates, with ``block``), and each mode's moments
+    are taken over its states' canonical coordinates; a mode with fewer than 2 (d + 1) states
+    gets its Laplace approximation carried through the map's Jacobian (central differences)."""
+    cblock = canonical_block(canonical, block)
+    sheared = modes if sheared is None else sheared
+    y = z if canonical.shear is None else np.asarray(canonical.shear.forward(z))
+    near = nearest_mode(block, sheared, y[:, block])
+    zw = canonical.split(z)[0][:, cblock]
+    means, covs = [], []
+    for i, m in enumerate(modes):
+        zi = zw[near == i]
+        if len(zi) >= 2 * (cblock.size + 1):
+            means.append(zi.mean(0))
+            covs.append(_pooled_cov(zi))
+            continue
+        x = np.asarray(m["x"], dtype=np.float64)
+        eps = 1e-5
+        steps = np.concatenate([x + eps * np.eye(x.size), x - eps * np.eye(x.size)])
+        ws = canonical.split(np.concatenate([x[None], steps]))[0][:, cblock]
+        J = (ws[1:1 + x.size] - ws[1 + x.size:]).T / (2 * eps)
+        means.append(ws[0])
+        covs.append(J @ np.asarray(m["cov"]) @ J.T
+                    + 1e-10 * np.eye(cblock.size))
+    return _proposal(cblock, np.array(means), np.array(covs), modes)
+
+
+def default_moves(target, hmc: bool = False, proposal=None, canonical_proposal: bool = False):
     """DE (proposing in :class:`bayesmotion.inference.moves.StyleShear`'s coordinates when the
     target samples style vectors with the output scales they multiply,
     :class:`bayesmotion.inference.moves.ShearedDE`, and there in the canonical coordinates of
@@ -178,8 +227,10 @@ def default_moves(target, hmc: bool = False, proposal=None):
         # the hyperparameters are nearly Gaussian, strongly correlated (DE crawls there: tau
         # ~300 steps at the demo size): an accepted independence proposal is a fresh draw
         block, mean, cov, *weights = proposal
-        extra = [IndependenceMove(block, mean, cov, weights=weights[0] if weights else None,
-                                  shear=shear)]
+        weights = weights[0] if weights else None
+        extra = [CanonicalIndependence(canonical, block, mean, cov, weights=weights)
+                 if canonical_proposal else
+                 IndependenceMove(block, mean, cov, weights=weights, shear=shear)]
     if not (hmc and hasattr(target, "_logp")):
         return Sequence(moves, *extra) if extra else moves
     # the hyperparameters (and two-level styles) are nearly Gaussian but strongly correlated,

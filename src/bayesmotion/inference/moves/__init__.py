@@ -5,7 +5,11 @@ coordinates where the output scales do not trade off against the style norms
 (:class:`ShearedDE`) and, for the rotated style vectors, on what the likelihood sees of them
 (:class:`CanonicalDE`); :class:`Sequence` composes them within one step."""
 
-from bayesmotion.inference.moves.canonical import CanonicalDE, CanonicalStyles
+from bayesmotion.inference.moves.canonical import (
+    CanonicalDE,
+    CanonicalIndependence,
+    CanonicalStyles,
+)
 from bayesmotion.inference.moves.hmc import EnsembleHMC
 from bayesmotion.inference.moves.independence import IndependenceMove
 from bayesmotion.inference.moves.rotations import (
@@ -17,6 +21,6 @@ from bayesmotion.inference.moves.rotations import (
 from bayesmotion.inference.moves.sequence import Sequence
 from bayesmotion.inference.moves.shear import ShearedDE, StyleShear
 
-__all__ = ["CanonicalDE", "CanonicalStyles", "EnsembleHMC", "IndependenceMove", "Sequence",
-           "ShearedDE", "StyleRotations", "StyleShear", "plane_basis", "plane_rotations",
-           "style_slices"]
+__all__ = ["CanonicalDE", "CanonicalIndependence", "CanonicalStyles", "EnsembleHMC",
+           "IndependenceMove", "Sequence", "ShearedDE", "StyleRotations", "StyleShear",
+           "plane_basis", "plane_rotations", "style_slices"]

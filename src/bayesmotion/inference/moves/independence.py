@@ -120,18 +120,23 @@ class IndependenceMove(emcee.moves.MHMove):
         top = terms.max(0)
         return top + np.log(np.sum(np.exp(terms - top), 0))
 
+    def draw(self, z, random) -> tuple[np.ndarray, np.ndarray]:
+        """Fresh block coordinates for walkers at block coordinates ``z`` (n, len(block)):
+        (new (n, len(block)), log q(z) - log q(new), the proposal's part of the ratio)."""
+        n, d = z.shape[0], self.block.size
+        scale = np.sqrt(self.df / random.chisquare(self.df, size=n))
+        comp = (np.zeros(n, dtype=int) if len(self.means) == 1
+                else random.choice(len(self.means), size=n, p=self.weights))
+        step = np.einsum("nij,nj->ni", self._chols[comp], random.randn(n, d))
+        new = self.means[comp] + scale[:, None] * step
+        return new, self.log_q(z) - self.log_q(new)
+
     def _propose(self, coords, random):
         x = np.asarray(coords, dtype=float)
         if self.shear is not None:
             x = np.asarray(self.shear.forward(x), dtype=float)
-        n, d = x.shape[0], self.block.size
-        scale = np.sqrt(self.df / random.chisquare(self.df, size=n))
-        comp = (np.zeros(n, dtype=int) if len(self.means) == 1
-                else random.choice(len(self.means), size=n, p=self.weights))
         new = x.copy()
-        step = np.einsum("nij,nj->ni", self._chols[comp], random.randn(n, d))
-        new[:, self.block] = self.means[comp] + scale[:, None] * step
-        log_ratio = self.log_q(x[:, self.block]) - self.log_q(new[:, self.block])
+        new[:, self.block], log_ratio = self.draw(x[:, self.block], random)
         if self.shear is not None:
             new = np.asarray(self.shear.inverse(new), dtype=float)
         return new, log_ratio
