@@ -39,9 +39,9 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 CACHE = HERE / ".cache"
-SETTINGS = {"full": {"max_iter": 1000, "steps": 7000,
-                     "checkpoints": [400, 600, 800, 1000, 1200, 1600, 2000, 3000, 4000, 5000,
-                                     6000, 7000, 8000]},
+SETTINGS = {"full": {"max_iter": 1000, "steps": 2000,
+                     "checkpoints": [300, 400, 500, 600, 800, 1000, 1200, 1600, 2000, 3000,
+                                     4000, 6000, 8000]},
             "quick": {"max_iter": 150, "steps": 300, "checkpoints": [100, 200, 300]}}
 TARGET_RHAT, TARGET_ESS = 1.01, 400
 
@@ -78,10 +78,12 @@ def demo_model(max_iter: int, cache: Path | None = None):
 # part of the cache key, so a chain run with other default moves or coordinates is not resumed:
 # edit it whenever sample_posterior's default moves or sampled coordinates change
 SAMPLER_VERSION = ("DE move (in the style shear's coordinates, the rotated style vectors through "
-                   "their Gram's LQ factor) followed by StyleRotations, then "
-                   "an IndependenceMove on the hyperparameters (Laplace proposal in the shear's "
-                   "coordinates, adapted after 150 steps; a mixture with one component per "
-                   "idle-factor mode)")
+                   "their Gram's LQ factor, each walker keeping its rotation from the aligned "
+                   "one) followed by StyleRotations with reflections, then an IndependenceMove "
+                   "on the hyperparameters (Laplace proposal in the shear's coordinates for the "
+                   "150-step adaptation; a mixture with one component per idle-factor mode), "
+                   "after it on the hyperparameters and the Gram factors (canonical "
+                   "coordinates, the adaptation's moments)")
 
 
 def _key(model) -> str:

@@ -81,10 +81,22 @@ def test_volume_term_is_the_log_jacobian_of_the_full_bijection():
     assert np.ptp(diffs) < 1e-6
 
 
+@pytest.fixture(scope="module")
+def three_emotions():
+    """A small model whose emotion factor has 3 levels (so it is rotated and canonical)."""
+    import bayesmotion as bm
+
+    ds = bm.load_handshakes(fps=5.0).filter(couple="c1", emotion=["neutral", "happy", "sad"])
+    data = bm.MotionDataset(ds.trials, {"emotion": ("neutral", "happy", "sad"),
+                                        "couple": ("c1",)})
+    return bm.HGPDM(latent_dim=2, interaction_dim=2).fit(data, max_iter=60, progress=False)
+
+
 @pytest.mark.slow
-def test_default_sampler_with_canonical_de_agrees_with_nuts_on_three_emotions():
+def test_default_sampler_with_canonical_de_agrees_with_nuts_on_three_emotions(three_emotions):
     # the default moves on a model with a rotated (3-level) style factor: DE on the LQ factor,
-    # the rotations, the independence step; NUTS on the same potential is the reference
+    # the rotations, the independence step (after the adaptation, on the hyperparameters and
+    # the Gram factor); NUTS on the same potential is the reference
     import warnings
 
     import bayesmotion as bm
@@ -94,10 +106,7 @@ def test_default_sampler_with_canonical_de_agrees_with_nuts_on_three_emotions():
     from bayesmotion.inference.proposals import default_moves
     from bayesmotion.inference.target import Target
 
-    ds = bm.load_handshakes(fps=5.0).filter(couple="c1", emotion=["neutral", "happy", "sad"])
-    data = bm.MotionDataset(ds.trials, {"emotion": ("neutral", "happy", "sad"),
-                                        "couple": ("c1",)})
-    model = bm.HGPDM(latent_dim=2, interaction_dim=2).fit(data, max_iter=60, progress=False)
+    model = three_emotions
     moves = default_moves(Target(model))
     assert isinstance(moves, StyleRotations) and isinstance(moves.inner, CanonicalDE)
     with warnings.catch_warnings():
@@ -108,6 +117,52 @@ def test_default_sampler_with_canonical_de_agrees_with_nuts_on_three_emotions():
     cmp = compare_posteriors(e, n)
     print("emcee vs NUTS: max |z| =", cmp["max_abs_z"], "max |z_sd| =", cmp["max_abs_z_sd"])
     assert cmp["max_abs_z"] < 3.5 and cmp["max_abs_z_sd"] < 3.5
+    # the run did draw the Gram factor in the independence step after its adaptation
+    sampled = e.info["independence_block_sampling"]
+    assert "log T:emotion[0, 0]" in sampled and "T:emotion[1, 0]" in sampled
+    assert not any(name.startswith("style:emotion") for name in sampled)
+    assert 0.02 < e.info["independence_acceptance"] < 1
+
+
+@pytest.mark.slow
+def test_a_resumed_run_recomputes_the_canonical_proposal_bit_for_bit(three_emotions, tmp_path,
+                                                                       monkeypatch):
+    # the proposal after the adaptation is computed from the file's stored chain: a run
+    # stopped inside the sampling phase and resumed is the uninterrupted run
+    import warnings
+
+    import bayesmotion as bm
+    from bayesmotion.inference import emcee_runner
+    from bayesmotion.inference.posterior import ChainTooShortWarning
+
+    monkeypatch.setattr(emcee_runner, "adapt_steps", lambda n: 20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        whole = bm.sample_posterior(three_emotions, n_steps=120, progress=False, burn=20, thin=1,
+                                    backend=tmp_path / "whole.h5")
+        bm.sample_posterior(three_emotions, n_steps=50, progress=False, burn=20, thin=1,
+                            backend=tmp_path / "parts.h5")
+        parts = bm.sample_posterior(three_emotions, n_steps=120, progress=False, burn=20, thin=1,
+                                    backend=tmp_path / "parts.h5")
+    assert parts.info["adapt_steps"] == whole.info["adapt_steps"] == 20
+    assert "log T:emotion[0, 0]" in whole.info["independence_block_sampling"]
+    np.testing.assert_array_equal(parts.chains, whole.chains)
+
+
+def test_a_proposal_that_overflows_is_outside_not_a_hang():
+    # exp of a huge log-diagonal, NaN or inf in T: marked outside (refused), never handed to
+    # the SVD of the alignment (which can loop forever on inf)
+    can = CanonicalStyles({"e": IDX})
+    x = random_states(4, np.random.default_rng(0))
+    w, (R,) = can.split(x)
+    bad = w.copy()
+    bad[0, IDX[0]] = 800.0
+    bad[1, IDX[1]] = np.nan
+    bad[2, IDX[3]] = np.inf
+    out, inside = can.merge(bad, [R])
+    assert inside.tolist() == [False, False, False, True]
+    assert np.all(np.isfinite(out))
+    np.testing.assert_allclose(out[3], x[3], atol=1e-10)
 
 
 @pytest.mark.parametrize(("reflect", "align"), [(True, True), (True, False), (False, False)])

@@ -17,12 +17,13 @@ from bayesmotion.inference.chainfile import (
     h5_errors,
     open_h5,
 )
-from bayesmotion.inference.moves import CanonicalStyles, StyleShear, style_slices
+from bayesmotion.inference.moves import StyleShear
 from bayesmotion.inference.posterior import format_seconds, posterior_from_chain
 from bayesmotion.inference.proposals import (
     adapt_steps,
     canonical_block,
     canonical_mixture,
+    canonical_styles,
     default_moves,
     idle_factor_modes,
     independence_block,
@@ -147,16 +148,15 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         shear = StyleShear.for_target(target)
         modes = idle_factor_modes(target, centre, cov, block)  # info reports them as found
         proposal_modes = sheared_modes(modes, shear)
-        canonical = CanonicalStyles(style_slices(target.unravel, target.x0)
-                                    if hasattr(target, "unravel") else {}, shear)
+        canonical = canonical_styles(target)
 
         def phase_moves(first: bool):
             if first:
                 return default_moves(target, hmc, mixture_proposal(block, proposal_modes))
             z = be.get_chain()[n_adapt // 3:n_adapt].reshape(-1, target.ndim)
             if CANONICAL_INDEPENDENCE and canonical.blocks:
-                proposal = canonical_mixture(canonical, block, modes, z, proposal_modes)
-                return default_moves(target, hmc, proposal, canonical_proposal=True)
+                proposal = canonical_mixture(canonical, block, modes, z)
+                return default_moves(target, hmc, proposal, canonical_proposal=canonical)
             if shear is not None:
                 z = in_halves(shear.forward, z, W)
             return default_moves(target, hmc, mixture_proposal(block, proposal_modes,
@@ -199,7 +199,8 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         names = getattr(target, "names", None)  # a bare target has indices only
         info["independence_block"] = ([names[i] for i in block] if names is not None
                                       else block.tolist())
-        if CANONICAL_INDEPENDENCE and canonical.blocks:  # the block after the adaptation
+        if CANONICAL_INDEPENDENCE and canonical.blocks and n_adapt and done > n_adapt:
+            # the block after the adaptation (where the chain has got there)
             slots = dict(zip(canonical.slots().tolist(), canonical.slot_names(), strict=True))
             info["independence_block_sampling"] = [
                 slots.get(i, names[i] if names is not None else i)

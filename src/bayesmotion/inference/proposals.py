@@ -162,14 +162,14 @@ def canonical_block(canonical, block) -> np.ndarray:
                            + canonical.slots().tolist()), dtype=int)
 
 
-def canonical_mixture(canonical, block, modes, z, sheared=None):
+def canonical_mixture(canonical, block, modes, z):
     """:func:`mixture_proposal` in canonical coordinates over :func:`canonical_block`: the
     adaptation states ``z`` (model coordinates, rows) are split between the modes as there (in
-    ``sheared``: the modes in the shear's coordinates, with ``block``), and each mode's moments
+    the coordinates of ``canonical``'s shear, over ``block``), and each mode's moments
     are taken over its states' canonical coordinates; a mode with fewer than 2 (d + 1) states
     gets its Laplace approximation carried through the map's Jacobian (central differences)."""
     cblock = canonical_block(canonical, block)
-    sheared = modes if sheared is None else sheared
+    sheared = sheared_modes(modes, canonical.shear)
     y = z if canonical.shear is None else np.asarray(canonical.shear.forward(z))
     near = nearest_mode(block, sheared, y[:, block])
     zw = canonical.split(z)[0][:, cblock]
@@ -191,19 +191,28 @@ def canonical_mixture(canonical, block, modes, z, sheared=None):
     return _proposal(cblock, np.array(means), np.array(covs), modes)
 
 
-def default_moves(target, hmc: bool = False, proposal=None, canonical_proposal: bool = False):
+def canonical_styles(target) -> CanonicalStyles:
+    """The canonical coordinates (:class:`bayesmotion.inference.moves.CanonicalStyles`, aligned)
+    of ``target``'s style factors with 3 or more levels, in its shear's coordinates; none for a
+    bare density."""
+    slices = style_slices(target.unravel, target.x0) if hasattr(target, "unravel") else {}
+    return CanonicalStyles(slices, StyleShear.for_target(target))
+
+
+def default_moves(target, hmc: bool = False, proposal=None, canonical_proposal=None):
     """DE (proposing in :class:`bayesmotion.inference.moves.StyleShear`'s coordinates when the
     target samples style vectors with the output scales they multiply,
     :class:`bayesmotion.inference.moves.ShearedDE`, and there in the canonical coordinates of
     the factors with 3 or more levels, :class:`bayesmotion.inference.moves.CanonicalDE`), each
-    step followed by the style rotations when the target samples style vectors;
-    then, with ``proposal = (block, mean, cov[, weights])`` (a mixture when ``mean`` is 2-d;
-    in the shear's coordinates where there is one, :func:`sheared_modes`), an independence step
-    on that block
-    (:class:`bayesmotion.inference.moves.IndependenceMove`); then
-    (``hmc``) ensemble-preconditioned HMC steps (:class:`bayesmotion.inference.moves.EnsembleHMC`):
-    one
-    on the coordinates the rotations do not move, one on those they do.
+    step followed by the style rotations when the target samples style vectors; then, with
+    ``proposal = (block, mean, cov[, weights])`` (a mixture when ``mean`` is 2-d), an
+    independence step on that block: in the shear's coordinates where there is one
+    (:func:`sheared_modes`; :class:`bayesmotion.inference.moves.IndependenceMove`), or, with
+    ``canonical_proposal`` (the :class:`bayesmotion.inference.moves.CanonicalStyles` the
+    proposal is in, :func:`canonical_mixture`; DE then uses it too), in its canonical
+    coordinates (:class:`bayesmotion.inference.moves.CanonicalIndependence`); then (``hmc``)
+    ensemble-preconditioned HMC steps (:class:`bayesmotion.inference.moves.EnsembleHMC`): one on
+    the coordinates the rotations do not move, one on those they do.
 
     Not DESnookerMove: emcee 3.1.6's snooker move does not leave the target invariant (its
     projection divides by sqrt(|z - x|) instead of |z - x|); on 14 iid logit-Beta(11, 1)
@@ -213,7 +222,7 @@ def default_moves(target, hmc: bool = False, proposal=None, canonical_proposal: 
 
     shear = StyleShear.for_target(target)
     slices = style_slices(target.unravel, target.x0) if hasattr(target, "unravel") else {}
-    canonical = CanonicalStyles(slices, shear)
+    canonical = canonical_styles(target) if canonical_proposal is None else canonical_proposal
     if canonical.blocks:  # DE on what the likelihood sees of the rotated style vectors
         moves = CanonicalDE(canonical)
     else:  # DE along the output scales' ridge with the style norms, where there is one
@@ -228,8 +237,8 @@ def default_moves(target, hmc: bool = False, proposal=None, canonical_proposal: 
         # ~300 steps at the demo size): an accepted independence proposal is a fresh draw
         block, mean, cov, *weights = proposal
         weights = weights[0] if weights else None
-        extra = [CanonicalIndependence(canonical, block, mean, cov, weights=weights)
-                 if canonical_proposal else
+        extra = [CanonicalIndependence(canonical_proposal, block, mean, cov, weights=weights)
+                 if canonical_proposal is not None else
                  IndependenceMove(block, mean, cov, weights=weights, shear=shear)]
     if not (hmc and hasattr(target, "_logp")):
         return Sequence(moves, *extra) if extra else moves
