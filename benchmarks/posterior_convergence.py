@@ -5,9 +5,11 @@ demo-size target of the Bayesian layer).
 The demo's model: ``load_handshakes(fps=10)`` without the 4 held-out trials (20 trials, N = 340
 frames per actor), ``HGPDM().fit(max_iter=1000, seed=0)``; then ``sample_posterior`` with its
 defaults (one ensemble of 2 ndim + 2 walkers started from the Laplace approximation; DE moves
-followed by style rotations, then an independence move on the hyperparameters whose proposal
-has one component per idle-factor mode, ``bayesmotion.inference.proposals.idle_factor_modes``)
-for ``steps`` steps into an emcee HDF5 backend. R-hat (rank-normalised, split, arviz) and
+in the shear's and the canonical style coordinates, followed by style rotations, then an
+independence move whose proposal has one component per idle-factor mode,
+``bayesmotion.inference.proposals.idle_factor_modes``, and which after its adaptation draws the
+emotion styles' Gram factor with the hyperparameters; ``SAMPLER_VERSION``) for ``steps`` steps
+into an emcee HDF5 backend. R-hat (rank-normalised, split, arviz) and
 bulk/tail ESS are computed on the chain's first n steps for each n in ``checkpoints``, after
 the package's own burn-in rule (2 max tau, at most half the chain, at least the independence
 move's adaptation), with the walkers as arviz chains.
@@ -18,14 +20,12 @@ cores are idle, ``bayesmotion.gp.blas``), so the fitted model is cached in ``ben
 of the fitted parameters and ``SAMPLER_VERSION``: a run stopped by the suite's timeout, or one
 with ``steps`` raised (checkpoints past it are skipped), resumes from the file.
 
-Current result (``results/posterior_convergence.json``, full settings, 54 walkers, 26 dims):
-the target is first met at 6,000 steps (``["checkpoints"][10]``: max R-hat 1.010, min bulk ESS
-5,487; at 4,000 steps, ``["checkpoints"][8]``, R-hat is 1.012) and holds at 7,000
-(``["checkpoints"][11]``: 1.009 and 6,147, max tau 51). Worst coordinates
-(``["worst_coordinate_names"]``): log_alpha[4] and style:emotion[0, 0]. ``["seconds_per_step"]``
-0.78, over the steps sampled after ``["resumed_from_step"]``. That run counted the sampled
-coordinates only, not the Gram entries, which mix more slowly (``results/style_shear.json``,
-key ``identified``).
+Current result (``results/posterior_convergence.json``, full settings, 54 walkers, 26 dims,
+Gram entries counted): the bulk-ESS target is met from 400 steps (``["checkpoints"][1]``: min
+bulk ESS 474) and the R-hat target is not met by 2,000 steps (``["checkpoints"][8]``: max R-hat
+1.014, min bulk ESS 3,840, max tau 25.5). Worst coordinates (``["worst_coordinate_names"]``):
+the couple's style coordinates. ``["seconds_per_step"]`` 0.64, over the steps sampled after
+``["resumed_from_step"]``.
 """
 
 from __future__ import annotations
