@@ -640,6 +640,9 @@ CHAIN_MUTATIONS = {
         f"random_state_{int(rng.integers(0, 5))}",
         _pick(rng, (np.arange(3), "x", -1, np.zeros(624, dtype=np.uint8), 2.5)))),
     "adaptation length bad": _set_attr("bayesmotion_adapt_steps", (-4, 2.5, "ten", np.arange(2))),
+    "refit steps bad": _set_attr("bayesmotion_refit_steps",
+                                 (np.array([400, 300]), np.array([2.5]), "ten", -1,
+                                  np.zeros((2, 2), dtype=int))),
     # datasets
     "dataset deleted": _group_edit(_del_dataset),
     "dataset of another shape": _group_edit(_wrong_shape),

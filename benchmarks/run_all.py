@@ -64,6 +64,7 @@ BENCHMARKS = [
     "sparse_inference",
     "compile_cache",
     "style_shear",
+    "independence_refit",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 

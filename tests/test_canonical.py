@@ -132,10 +132,13 @@ def test_a_resumed_run_recomputes_the_canonical_proposal_bit_for_bit(three_emoti
     import warnings
 
     import bayesmotion as bm
-    from bayesmotion.inference import emcee_runner
+    from bayesmotion.inference import emcee_runner, proposals
+    from bayesmotion.inference.chainfile import REFIT_ATTR, open_h5
     from bayesmotion.inference.posterior import ChainTooShortWarning
 
     monkeypatch.setattr(emcee_runner, "adapt_steps", lambda n: 20)
+    # refitted at 40 and 80: the stop at 50 falls between them
+    monkeypatch.setattr(proposals, "REFIT_STEPS", (40, 80))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
         whole = bm.sample_posterior(three_emotions, n_steps=120, progress=False, burn=20, thin=1,
@@ -145,6 +148,9 @@ def test_a_resumed_run_recomputes_the_canonical_proposal_bit_for_bit(three_emoti
         parts = bm.sample_posterior(three_emotions, n_steps=120, progress=False, burn=20, thin=1,
                                     backend=tmp_path / "parts.h5")
     assert parts.info["adapt_steps"] == whole.info["adapt_steps"] == 20
+    assert parts.info["refit_steps"] == whole.info["refit_steps"] == [40, 80]
+    with open_h5(tmp_path / "parts.h5", "r") as f:
+        assert f["mcmc"].attrs[REFIT_ATTR].tolist() == [40, 80]
     assert "log T:emotion[0, 0]" in whole.info["independence_block_sampling"]
     np.testing.assert_array_equal(parts.chains, whole.chains)
 
@@ -289,10 +295,12 @@ def test_canonical_independence_keeps_an_exact_posterior(align, volume):
         assert np.abs(z).max() > 10.0
 
 
-def test_canonical_mixture_takes_moments_in_canonical_coordinates():
-    # the proposal after the adaptation: the moments of the states' canonical coordinates over
-    # the block (hyperparameters and the Gram factor's entries); a mode with too few states gets
-    # its Laplace approximation carried through the map's Jacobian
+def test_canonical_mixture_takes_moments_in_canonical_coordinates(monkeypatch):
+    # the proposal after the adaptation: a sinh-arcsinh map of each canonical coordinate over
+    # the block (hyperparameters and the Gram factor's entries) fitted to the states, and the
+    # moments of the mapped states; a mode with too few states gets its Laplace approximation
+    # carried through the canonical map's Jacobian and the sinh-arcsinh map's slope
+    from bayesmotion.inference import proposals
     from bayesmotion.inference.proposals import canonical_block, canonical_mixture
 
     rng = np.random.default_rng(5)
@@ -306,15 +314,24 @@ def test_canonical_mixture_takes_moments_in_canonical_coordinates():
     assert cb.tolist() == [0, 1, *IDX[:9].tolist()]
     assert can.slot_names()[:2] == ["log T:e[0, 0]", "T:e[1, 0]"]
     z = rng.multivariate_normal(x0, cov, size=400)
-    got_block, mean, c, weights = canonical_mixture(can, block, modes, z)
+    got_block, mean, c, weights, marginal = canonical_mixture(can, block, modes, z)
     w = can.split(z)[0][:, cb]
-    assert got_block.tolist() == cb.tolist() and weights is None
-    np.testing.assert_allclose(mean, w.mean(0), atol=1e-12)
-    np.testing.assert_allclose(c, np.cov(w.T), rtol=1e-6, atol=1e-14)
-    # too few states: the Laplace covariance, linearised, against many mapped draws
-    _, mean2, c2, _ = canonical_mixture(can, block, modes, z[:5])
+    assert got_block.tolist() == cb.tolist() and weights is None and marginal.ndim == cb.size
+    y = marginal.forward(w)[0]
+    np.testing.assert_allclose(mean, y.mean(0), atol=1e-12)
+    np.testing.assert_allclose(c, np.cov(y.T), rtol=1e-6, atol=1e-14)
+    # too few states, no map: the Laplace covariance, linearised, against many mapped draws
+    monkeypatch.setattr(proposals, "MARGINAL_MAP", False)
+    _, mean2, c2, _, none = canonical_mixture(can, block, modes, z[:5])
+    assert none is None
     many = can.split(rng.multivariate_normal(x0, cov, size=200000))[0][:, cb]
     np.testing.assert_allclose(mean2, can.split(x0[None])[0][0, cb], atol=1e-12)
     sd = np.sqrt(np.diag(np.cov(many.T)))
     np.testing.assert_allclose(np.sqrt(np.diag(c2)), sd, rtol=0.05)
     np.testing.assert_allclose(c2 / np.outer(sd, sd), np.corrcoef(many.T), atol=0.05)
+    # with the map (fitted to the 5 states): that Gaussian carried through its slope
+    monkeypatch.setattr(proposals, "MARGINAL_MAP", True)
+    _, mean3, c3, _, m3 = canonical_mixture(can, block, modes, z[:5])
+    slope = m3.slope(mean2[None])[0]
+    np.testing.assert_allclose(mean3, m3.forward(mean2[None])[0][0], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(c3, slope[:, None] * c2 * slope[None, :], rtol=1e-9, atol=1e-14)

@@ -21,7 +21,12 @@ import pytest
 import bayesmotion as bm
 from bayesmotion.app.cli import main
 from bayesmotion.errors import BayesmotionError
-from bayesmotion.inference.chainfile import ADAPT_ATTR, ChainFile, check_chain_file
+from bayesmotion.inference.chainfile import (
+    ADAPT_ATTR,
+    REFIT_ATTR,
+    ChainFile,
+    check_chain_file,
+)
 from bayesmotion.inference.posterior import ChainTooShortWarning
 
 from .test_chainfile import run
@@ -158,6 +163,8 @@ CORRUPTIONS = {
     "random state removed": (del_attr("random_state_1"), "random state"),
     "random state garbage": (set_attr("random_state_1", np.arange(3)), "random state"),
     "adaptation length negative": (set_attr(ADAPT_ATTR, -4), ADAPT_ATTR),
+    "refit steps decreasing": (set_attr(REFIT_ATTR, np.array([400, 300])), REFIT_ATTR),
+    "refit steps not integers": (set_attr(REFIT_ATTR, np.array([400.5])), REFIT_ATTR),
     "chain bit flip to NaN": (lambda p: flip_exponent(p, "mcmc/chain", (7, 5, 1)), "step 7"),
     "log_prob bit flip to NaN": (lambda p: flip_exponent(p, "mcmc/log_prob", (12, 3)),
                                  "step 12"),
@@ -422,3 +429,22 @@ def test_any_corruption_is_read_finite_or_refused_naming_the_file(good, tmp_path
             assert len(got["chain"]) == got["iteration"], damage
         if "check" in got:
             assert got["check"] == got["iteration"], damage
+
+
+def test_stored_refit_steps_inside_the_adaptation_are_refused(tiny_model, tmp_path):
+    # a window (adaptation end, refit step) would be empty: the file is refused on resume,
+    # naming the attribute, and left as it was
+    path = tmp_path / "chain.h5"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        post = bm.sample_posterior(tiny_model, n_steps=16, backend=path, progress=False,
+                                   burn=4, thin=1)
+    assert post.info["adapt_steps"] == 4
+    with h5py.File(path, "a") as f:
+        assert f["mcmc"].attrs[REFIT_ATTR].tolist() == [250, 500, 1000]
+        f["mcmc"].attrs[REFIT_ATTR] = np.array([3, 500])
+    before = path.read_bytes()
+    with pytest.raises(BayesmotionError, match="refit steps"):
+        bm.sample_posterior(tiny_model, n_steps=20, backend=path, progress=False, burn=4,
+                            thin=1)
+    assert path.read_bytes() == before

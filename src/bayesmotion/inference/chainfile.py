@@ -42,6 +42,8 @@ from bayesmotion.errors import BayesmotionError
 LOCK_WAIT_S = 120.0
 #: the attribute where the independence move's adaptation length is stored with its chain
 ADAPT_ATTR = "bayesmotion_adapt_steps"
+#: the attribute where the steps at which the independence proposal is refitted are stored
+REFIT_ATTR = "bayesmotion_refit_steps"
 #: the groups bayesmotion's runs write: the joint chain (or the factorised upper one) and gamma's
 GROUPS = ("mcmc", "gamma")
 #: steps read at once when checking stored values
@@ -175,7 +177,19 @@ def check_layout(f, name: str, path) -> tuple[int, int, int]:
                                f"{_AFTER}")
     if ADAPT_ATTR in attrs:
         _attr_int(attrs, ADAPT_ATTR, where, low=0)
+    if REFIT_ATTR in attrs:
+        refit_attr(attrs, where)
     return W, D, it
+
+
+def refit_attr(attrs, where: str) -> list[int]:
+    """The stored refit steps (:data:`REFIT_ATTR`): increasing positive integers."""
+    value = np.asarray(attrs[REFIT_ATTR])
+    if (value.ndim != 1 or value.dtype.kind not in "iu" or np.any(value < 1)
+            or np.any(np.diff(value) <= 0)):
+        raise BayesmotionError(f"{where}: attribute {REFIT_ATTR!r} is {value.tolist()!r}, "
+                               f"expected increasing positive integers; {_AFTER}")
+    return [int(v) for v in value]
 
 
 def _first_bad_step(values: np.ndarray) -> int | None:

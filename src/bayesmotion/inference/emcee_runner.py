@@ -12,10 +12,12 @@ import numpy as np
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.inference.chainfile import (
     ADAPT_ATTR,
+    REFIT_ATTR,
     ChainFile,
     check_chain_file,
     h5_errors,
     open_h5,
+    refit_attr,
 )
 from bayesmotion.inference.moves import StyleShear
 from bayesmotion.inference.posterior import format_seconds, posterior_from_chain
@@ -30,6 +32,7 @@ from bayesmotion.inference.proposals import (
     mixture_proposal,
     move_stats,
     phase_stats,
+    refit_steps,
     sheared_modes,
 )
 from bayesmotion.inference.target import Target, in_halves, start_points
@@ -118,12 +121,24 @@ PHASE_LABELS = {True: "emcee, adapting ({W} walkers)", False: "emcee, sampling (
 """Progress-bar label of each phase (the independence proposal's adaptation, then sampling)."""
 
 
+def _label(which, W: int, n_adapt: int) -> str:
+    """The progress bar's label of a phase (``which``: True, None, or the window of steps a
+    sampling phase's proposal is fitted to)."""
+    if not isinstance(which, tuple):
+        return PHASE_LABELS[which].format(W=W)
+    if which[1] == n_adapt:
+        return PHASE_LABELS[False].format(W=W)
+    return f"emcee, sampling ({W} walkers, proposal refitted at step {which[1]})"
+
+
 def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, progress, init,
                ball, moves, hmc=False, independence=False):
-    """One ensemble over every sampled coordinate. With ``independence``, in two phases: the
-    adaptation (its independence proposal is the Laplace approximation) and the rest (the
-    proposal is the adaptation's sample moments), each a fixed kernel; a resumed file continues
-    in the phase where it stopped, the second phase's proposal recomputed from the file."""
+    """One ensemble over every sampled coordinate. With ``independence``, in phases: the
+    adaptation (its independence proposal is the Laplace approximation), then sampling with the
+    proposal fitted to the adaptation's last two thirds, refitted at each of
+    :func:`bayesmotion.inference.proposals.refit_steps` to every state since the adaptation;
+    each phase is a fixed kernel. A resumed file continues in the phase where it stopped, with
+    the adaptation length and refit steps stored in it, its proposals recomputed from it."""
     import emcee
 
     W = _n_walkers(n_walkers, target.ndim)
@@ -135,11 +150,14 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         check_chain_file(backend)
     be, done = _open_backend(backend, "mcmc", W, target.ndim, log_prob)
     be = emcee.backends.Backend() if be is None else be  # shared by the phases
-    cov, n_adapt = None, 0
+    cov, n_adapt, refits = None, 0, []
     if backend is not None:
         n_adapt = _adapt_record(backend, done, adapt_steps(n_steps) if independence else None)
+        refits = _refit_record(backend, done, n_adapt,
+                               refit_steps(n_adapt) if independence else None)
     elif independence:
         n_adapt = adapt_steps(n_steps)
+        refits = refit_steps(n_adapt)
     modes = None
     if independence:
         cov = target.laplace(centre)
@@ -150,10 +168,11 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         proposal_modes = sheared_modes(modes, shear)
         canonical = canonical_styles(target)
 
-        def phase_moves(first: bool):
-            if first:
+        def phase_moves(which):
+            if which is True:
                 return default_moves(target, hmc, mixture_proposal(block, proposal_modes))
-            z = be.get_chain()[n_adapt // 3:n_adapt].reshape(-1, target.ndim)
+            lo, hi = which  # the steps the proposal is fitted to
+            z = be.get_chain()[lo:hi].reshape(-1, target.ndim)
             if CANONICAL_INDEPENDENCE and canonical.blocks:
                 proposal = canonical_mixture(canonical, block, modes, z)
                 return default_moves(target, hmc, proposal, canonical_proposal=canonical)
@@ -163,7 +182,9 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
                                                                z[:, block]))
 
         # (a resumed file's stored adaptation may be longer than this call's n_steps)
-        phases = ([(min(n_adapt, n_steps), True), (n_steps, False)] if n_adapt
+        windows = [(n_adapt // 3, n_adapt)] + [(n_adapt, r) for r in refits]
+        ends = [min(e, n_steps) for e in [*refits, n_steps]]
+        phases = ([(min(n_adapt, n_steps), True), *zip(ends, windows, strict=True)] if n_adapt
                   else [(n_steps, True)])
     else:
         phases = [(n_steps, None)]
@@ -181,7 +202,7 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
         ran.append((used, end - done))
         sampler = emcee.EnsembleSampler(W, target.ndim, log_prob, vectorize=True, backend=be,
                                         moves=used)
-        label = {"desc": PHASE_LABELS[which].format(W=W)}
+        label = {"desc": _label(which, W, n_adapt)}
         if done:
             state = sampler._previous_state
         else:
@@ -196,6 +217,7 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
     info = {"seconds": seconds, "pace": pace.info, "factorised": False, **phase_stats(ran)}
     if independence:
         info["adapt_steps"] = n_adapt
+        info["refit_steps"] = [r for r in refits if r < done]  # those the chain got past
         names = getattr(target, "names", None)  # a bare target has indices only
         info["independence_block"] = ([names[i] for i in block] if names is not None
                                       else block.tolist())
@@ -233,6 +255,27 @@ def _adapt_record(backend, done: int, n_adapt: int | None) -> int:
     with open_h5(backend, "a") as f, h5_errors(backend, "write"):
         f["mcmc"].attrs[ADAPT_ATTR] = n_adapt
     return n_adapt
+
+
+def _refit_record(backend, done: int, n_adapt: int, refits: list[int] | None) -> list[int]:
+    """The refit steps a backend file's run uses, stored with its chain as its adaptation
+    length is (:func:`_adapt_record`); a file written before refits existed has none. Stored
+    steps must come after the stored adaptation."""
+    if refits is None:
+        return []
+    with open_h5(backend, "r") as f, h5_errors(backend):
+        attrs = f["mcmc"].attrs
+        if done:
+            stored = refit_attr(attrs, str(backend)) if REFIT_ATTR in attrs else []
+            if stored and stored[0] <= n_adapt:
+                raise BayesmotionError(
+                    f"backend {backend}: its refit steps {stored} do not all come after its "
+                    f"{n_adapt}-step adaptation; the file was not written by this package: use "
+                    f"another file")
+            return stored
+    with open_h5(backend, "a") as f, h5_errors(backend, "write"):
+        f["mcmc"].attrs[REFIT_ATTR] = np.asarray(refits, dtype=np.int64)
+    return refits
 
 
 def planned_adapt(backend, n_steps: int) -> int:

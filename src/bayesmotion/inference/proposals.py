@@ -15,6 +15,7 @@ from bayesmotion.inference.moves import (
     IndependenceMove,
     Sequence,
     ShearedDE,
+    SinhArcsinh,
     StyleRotations,
     StyleShear,
     style_slices,
@@ -31,6 +32,17 @@ PINNED_SD = 0.2
 
 
 ADAPT_STEPS = 150
+
+# after the adaptation the proposal is refitted, once the chain reaches each of these steps, to
+# every state since the adaptation: at the demo size a t on the 23 block coordinates fitted to
+# the adaptation's steps 50-150 accepts 0.23 of its proposals, fitted to steps 150-500 0.34,
+# and after the sinh-arcsinh map 0.26 and 0.45 (benchmarks/results/independence_refit.json)
+REFIT_STEPS = (250, 500, 1000)
+
+MARGINAL_MAP = True
+"""The independence proposal fitted after the adaptation is a t in the coordinates of a
+sinh-arcsinh map of each block coordinate (:class:`bayesmotion.inference.moves.SinhArcsinh`)."""
+MAP_FIT_ROWS = 4096
 
 
 def _rotated(moves) -> set[int]:
@@ -54,9 +66,9 @@ def idle_factor_modes(target, centre, cov, block) -> list[dict]:
     move: two-level factors), started from ``centre`` with that factor's style vectors at the
     simplex's centre, where the factor is idle and the output scales can take up its job.
 
-    At the demo size the couple factor has such a mode 1.4 nats below the main one (Laplace
-    evidence 1.2 nats lower, i.e. about a quarter of the mass), 4 posterior sd away in each
-    couple coordinate, and DE walkers cross between the two in thousands of steps.
+    Such a mode, where a fit has one, lies several posterior sd away in each of the factor's
+    coordinates, and DE walkers cross between the two in thousands of steps; the demo's fit
+    has none (``benchmarks/results/posterior_convergence.json``, key ``modes_found``).
 
     Returns one dict per mode, the main one first: ``x`` (flat), ``cov`` (Laplace), ``logp``,
     ``log_evidence`` (logp + log det(cov) / 2) and ``weight`` (normalised evidence); a search
@@ -131,26 +143,50 @@ def nearest_mode(block, modes, z) -> np.ndarray:
 
 
 def mixture_proposal(block, modes, z=None):
-    """(block, means, covs, weights) of the independence move: each mode's Laplace
-    approximation; with ``z`` (adaptation states, block coordinates), each mode's sample
-    moments over the states nearest it (Mahalanobis under its Laplace), where it has at least
-    2 (d + 1) of them. Weights: the modes' Laplace evidence, at least 0.05 each."""
+    """(block, means, covs, weights, marginal) of the independence move: each mode's Laplace
+    approximation; with ``z`` (adaptation states, block coordinates), a sinh-arcsinh map of each
+    coordinate fitted to them (``marginal``, :class:`bayesmotion.inference.moves.SinhArcsinh`)
+    and, in its coordinates, each mode's sample moments over the states nearest it (Mahalanobis
+    under its Laplace), where it has at least 2 (d + 1) of them, else its Laplace approximation
+    carried through the map. Weights: the modes' Laplace evidence, at least 0.05 each."""
     means = np.array([m["x"][block] for m in modes])
     covs = np.array([m["cov"][np.ix_(block, block)] for m in modes])
-    if z is not None:
-        near = nearest_mode(block, modes, z)
-        for i in range(len(modes)):
-            zi = z[near == i]
-            if len(zi) >= 2 * (block.size + 1):
-                means[i], covs[i] = zi.mean(0), _pooled_cov(zi)
-    return _proposal(block, means, covs, modes)
+    if z is None:
+        return _proposal(block, means, covs, modes)
+    near = nearest_mode(block, modes, z)
+    return _mapped_proposal(block, z, near, means, covs, modes)
 
 
-def _proposal(block, means, covs, modes):
+def _mapped_proposal(block, z, near, means, covs, modes):
+    """The proposal in the coordinates of a sinh-arcsinh map fitted to ``z`` (rows of block
+    coordinates, ``near`` each row's mode): each mode's moments there, or (too few rows) its
+    Gaussian ``means[i], covs[i]`` carried through the map's slope at the mean."""
+    # the map is fitted to at most MAP_FIT_ROWS states spread evenly over the window (each
+    # evaluation of its likelihood costs ~1.5 microseconds per state and coordinate)
+    rows = np.unique(np.linspace(0, len(z) - 1, min(len(z), MAP_FIT_ROWS)).astype(int))
+    marginal = SinhArcsinh.fit(z[rows]) if MARGINAL_MAP else None
+    y = z if marginal is None else marginal.forward(z)[0]
+    out_means, out_covs = [], []
+    for i in range(len(modes)):
+        yi = y[near == i]
+        if len(yi) >= 2 * (block.size + 1):
+            out_means.append(yi.mean(0))
+            out_covs.append(_pooled_cov(yi))
+        elif marginal is None:
+            out_means.append(means[i])
+            out_covs.append(covs[i])
+        else:
+            slope = marginal.slope(means[i][None])[0]
+            out_means.append(marginal.forward(means[i][None])[0][0])
+            out_covs.append(slope[:, None] * covs[i] * slope[None, :])
+    return _proposal(block, np.array(out_means), np.array(out_covs), modes, marginal)
+
+
+def _proposal(block, means, covs, modes, marginal=None):
     w = np.maximum([m["weight"] for m in modes], 0.05)
     if len(modes) == 1:
-        return block, means[0], covs[0], None
-    return block, means, covs, w / w.sum()
+        return block, means[0], covs[0], None, marginal
+    return block, means, covs, w / w.sum(), marginal
 
 
 def canonical_block(canonical, block) -> np.ndarray:
@@ -165,30 +201,25 @@ def canonical_block(canonical, block) -> np.ndarray:
 def canonical_mixture(canonical, block, modes, z):
     """:func:`mixture_proposal` in canonical coordinates over :func:`canonical_block`: the
     adaptation states ``z`` (model coordinates, rows) are split between the modes as there (in
-    the coordinates of ``canonical``'s shear, over ``block``), and each mode's moments
-    are taken over its states' canonical coordinates; a mode with fewer than 2 (d + 1) states
-    gets its Laplace approximation carried through the map's Jacobian (central differences)."""
+    the coordinates of ``canonical``'s shear, over ``block``), the sinh-arcsinh map is fitted to
+    their canonical coordinates, and each mode's moments are taken over its states there; a
+    mode with fewer than 2 (d + 1) states gets its Laplace approximation carried through the
+    canonical map's Jacobian (central differences) and the sinh-arcsinh map's slope."""
     cblock = canonical_block(canonical, block)
     sheared = sheared_modes(modes, canonical.shear)
     y = z if canonical.shear is None else np.asarray(canonical.shear.forward(z))
     near = nearest_mode(block, sheared, y[:, block])
     zw = canonical.split(z)[0][:, cblock]
     means, covs = [], []
-    for i, m in enumerate(modes):
-        zi = zw[near == i]
-        if len(zi) >= 2 * (cblock.size + 1):
-            means.append(zi.mean(0))
-            covs.append(_pooled_cov(zi))
-            continue
+    for m in modes:  # each mode's Laplace approximation in canonical coordinates
         x = np.asarray(m["x"], dtype=np.float64)
         eps = 1e-5
         steps = np.concatenate([x + eps * np.eye(x.size), x - eps * np.eye(x.size)])
         ws = canonical.split(np.concatenate([x[None], steps]))[0][:, cblock]
         J = (ws[1:1 + x.size] - ws[1 + x.size:]).T / (2 * eps)
         means.append(ws[0])
-        covs.append(J @ np.asarray(m["cov"]) @ J.T
-                    + 1e-10 * np.eye(cblock.size))
-    return _proposal(cblock, np.array(means), np.array(covs), modes)
+        covs.append(J @ np.asarray(m["cov"]) @ J.T + 1e-10 * np.eye(cblock.size))
+    return _mapped_proposal(cblock, zw, near, np.array(means), np.array(covs), modes)
 
 
 def canonical_styles(target) -> CanonicalStyles:
@@ -205,7 +236,8 @@ def default_moves(target, hmc: bool = False, proposal=None, canonical_proposal=N
     :class:`bayesmotion.inference.moves.ShearedDE`, and there in the canonical coordinates of
     the factors with 3 or more levels, :class:`bayesmotion.inference.moves.CanonicalDE`), each
     step followed by the style rotations when the target samples style vectors; then, with
-    ``proposal = (block, mean, cov[, weights])`` (a mixture when ``mean`` is 2-d), an
+    ``proposal = (block, mean, cov[, weights[, marginal]])`` (a mixture when ``mean`` is 2-d;
+    ``marginal`` a sinh-arcsinh map the t is taken after), an
     independence step on that block: in the shear's coordinates where there is one
     (:func:`sheared_modes`; :class:`bayesmotion.inference.moves.IndependenceMove`), or, with
     ``canonical_proposal`` (the :class:`bayesmotion.inference.moves.CanonicalStyles` the
@@ -235,11 +267,13 @@ def default_moves(target, hmc: bool = False, proposal=None, canonical_proposal=N
     if proposal is not None:
         # the hyperparameters are nearly Gaussian, strongly correlated (DE crawls there: tau
         # ~300 steps at the demo size): an accepted independence proposal is a fresh draw
-        block, mean, cov, *weights = proposal
-        weights = weights[0] if weights else None
-        extra = [CanonicalIndependence(canonical_proposal, block, mean, cov, weights=weights)
+        block, mean, cov, *rest = proposal
+        weights, marginal = (list(rest) + [None, None])[:2]
+        extra = [CanonicalIndependence(canonical_proposal, block, mean, cov, weights=weights,
+                                       marginal=marginal)
                  if canonical_proposal is not None else
-                 IndependenceMove(block, mean, cov, weights=weights, shear=shear)]
+                 IndependenceMove(block, mean, cov, weights=weights, shear=shear,
+                                  marginal=marginal)]
     if not (hmc and hasattr(target, "_logp")):
         return Sequence(moves, *extra) if extra else moves
     # the hyperparameters (and two-level styles) are nearly Gaussian but strongly correlated,
@@ -302,3 +336,10 @@ def _pooled_cov(z) -> np.ndarray:
 
 def adapt_steps(n_steps: int) -> int:
     return min(ADAPT_STEPS, n_steps // 4)
+
+
+def refit_steps(n_adapt: int) -> list[int]:
+    """The steps (:data:`REFIT_STEPS` past the adaptation's ``n_adapt``) at which the
+    independence proposal is refitted; the same whatever the run's length, so that a run
+    resumed for more steps follows the kernels of one run of the whole length."""
+    return [r for r in REFIT_STEPS if r > n_adapt]

@@ -235,13 +235,13 @@ class CanonicalIndependence(IndependenceMove):
     """
 
     def __init__(self, canonical: CanonicalStyles, block, mean, cov, df: float = 20.0,
-                 weights=None):
+                 weights=None, marginal=None):
         block = np.asarray(block, dtype=int).ravel()
         spare = np.setdiff1d(canonical.styles(), canonical.slots())
         if np.intersect1d(block, spare).size:
             raise ValueError("the block holds style slots that are always zero in canonical "
                              "coordinates")
-        super().__init__(block, mean, cov, df=df, weights=weights)
+        super().__init__(block, mean, cov, df=df, weights=weights, marginal=marginal)
         self.canonical = canonical
 
     def _propose(self, coords, random):

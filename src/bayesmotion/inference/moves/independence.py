@@ -43,11 +43,17 @@ class IndependenceMove(emcee.moves.MHMove):
             are then in its coordinates ``y = forward(x)``; a walker's ``y`` gets the new block
             and maps back, and the ratio is the same (a unit Jacobian adds nothing). Default:
             the sampled coordinates themselves.
+        marginal: a :class:`bayesmotion.inference.moves.SinhArcsinh` over the block's
+            coordinates, or None: the t (mixture) is then the law of the mapped block
+            ``marginal.forward(block)``, and ``mean`` and ``cov`` are in those coordinates; the
+            proposal's density carries the map's log-Jacobian. A drawn point the map cannot
+            take back (overflow) is refused.
 
     ``acceptance`` holds the fraction of accepted proposals so far.
     """
 
-    def __init__(self, block, mean, cov, df: float = 20.0, weights=None, shear=None):
+    def __init__(self, block, mean, cov, df: float = 20.0, weights=None, shear=None,
+                 marginal=None):
         block = np.asarray(block, dtype=int).ravel()
         if not block.size:
             raise ValueError("IndependenceMove needs a non-empty block of coordinates")
@@ -75,7 +81,10 @@ class IndependenceMove(emcee.moves.MHMove):
             raise ValueError(f"weights must be {k} positive numbers, got {weights!r}")
         if not df > 0:
             raise ValueError(f"df must be > 0, got {df!r}")
+        if marginal is not None and marginal.ndim != d:
+            raise ValueError(f"marginal maps {marginal.ndim} coordinates, the block has {d}")
         self.block = block
+        self.marginal = marginal
         self.shear = shear
         self.means = means
         self.weights = w / w.sum()
@@ -110,15 +119,18 @@ class IndependenceMove(emcee.moves.MHMove):
     def log_q(self, z) -> np.ndarray:
         """Log-density of the proposal at rows ``z`` of block coordinates, up to a constant."""
         z = np.atleast_2d(z)
+        log_jac = 0.0
+        if self.marginal is not None:
+            z, log_jac = self.marginal.forward(z)
         terms = np.empty((len(self.means), len(z)))
         for i, (m, L) in enumerate(zip(self.means, self._chols, strict=True)):
             w = np.linalg.solve(L, (z - m).T)
             terms[i] = self._log_norm[i] - 0.5 * (self.df + self.block.size) * np.log1p(
                 np.sum(w ** 2, 0) / self.df)
         if len(terms) == 1:
-            return terms[0]
+            return terms[0] + log_jac
         top = terms.max(0)
-        return top + np.log(np.sum(np.exp(terms - top), 0))
+        return top + np.log(np.sum(np.exp(terms - top), 0)) + log_jac
 
     def draw(self, z, random) -> tuple[np.ndarray, np.ndarray]:
         """Fresh block coordinates for walkers at block coordinates ``z`` (n, len(block)):
@@ -129,7 +141,13 @@ class IndependenceMove(emcee.moves.MHMove):
                 else random.choice(len(self.means), size=n, p=self.weights))
         step = np.einsum("nij,nj->ni", self._chols[comp], random.randn(n, d))
         new = self.means[comp] + scale[:, None] * step
-        return new, self.log_q(z) - self.log_q(new)
+        if self.marginal is None:
+            return new, self.log_q(z) - self.log_q(new)
+        new = self.marginal.inverse(new)
+        ok = np.all(np.isfinite(new), 1)
+        new[~ok] = z[~ok]  # refused below; a finite point keeps the density finite
+        with np.errstate(invalid="ignore"):
+            return new, np.where(ok, self.log_q(z) - self.log_q(new), -np.inf)
 
     def _propose(self, coords, random):
         x = np.asarray(coords, dtype=float)
