@@ -183,27 +183,23 @@ def test_demo_quick_writes_every_file(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::bayesmotion.inference.posterior.ChainTooShortWarning")
-def test_demo_runs_the_conditional_chain_it_is_configured_for(tmp_path, monkeypatch):
-    """The full demo's second chain (hyperparameters given the MAP style vectors, run to
-    convergence) on a tiny configuration: its diagnostics in summary.json, its section and
-    trace in the report, and the whole-posterior chain still the one the generation uses."""
+def test_full_demo_samples_the_whole_posterior(tmp_path, monkeypatch):
+    """The full demo samples the style vectors with the hyperparameters (one chain, the one the
+    generation uses) and says so, on a tiny configuration."""
     import bayesmotion.app.demo as demo
 
-    tiny = {"fps": 5.0, "max_iter": 10, "n_steps": 20, "fix_styles": False, "n_draws": 1,
-            "n_samples": 1, "infer_steps": 10, "gif_stride": 4, "conditional_steps": 30}
+    tiny = {**demo.SETTINGS["full"], "fps": 5.0, "max_iter": 10, "n_steps": 20, "n_draws": 1,
+            "n_samples": 1, "infer_steps": 10, "gif_stride": 4}
     monkeypatch.setitem(demo.SETTINGS, "full", tiny)
     s = demo.run_demo(tmp_path / "out", quick=False)
-    c = s["posterior_conditional"]
-    assert c["style_vectors"] == "held at the MAP" and c["n_steps"] == 30
-    assert c["n_coordinates"] < s["posterior"]["n_coordinates"]
-    assert s["posterior"]["style_vectors"] == "sampled"
-    assert {"max_rhat", "min_ess_bulk"} <= set(c)
+    p = s["posterior"]
+    assert p["style_vectors"] == "sampled" and p["n_steps"] == 20
+    # the couple's and the emotions' style coordinates beside the 12 hyperparameters
+    assert p["n_coordinates"] > 12 and {"max_rhat", "min_ess_bulk"} <= set(p)
     report = (tmp_path / "out" / "report.html").read_text()
-    assert "hyperparameters given the style vectors, to convergence" in report
-    assert "(30 steps)" in report
-    assert (tmp_path / "out" / "trace_conditional.png").stat().st_size > 0
-    assert json.loads((tmp_path / "out" / "summary.json").read_text())[
-        "posterior_conditional"]["n_steps"] == 30
+    assert "The whole posterior over the hyperparameters and the training style vectors" in report
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["posterior"][
+        "n_steps"] == 20
 
 
 @pytest.mark.slow

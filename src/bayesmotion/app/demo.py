@@ -35,26 +35,18 @@ from bayesmotion.viz.viewer import rollout_clip, viewer_fragment
 SETTINGS = {
     # quick: sized for the 3-minute target on 2 cores. Its posterior section samples the
     # hyperparameters with the style vectors held at the MAP (sample_posterior(fix_styles=True)),
-    # a conditional of the posterior that converges within this budget; the style vectors' slow
-    # directions need thousands of steps (benchmarks/results/posterior_convergence.json)
+    # a conditional of the posterior that converges within this budget; the whole posterior
+    # needs about 1,000 steps at this size (benchmarks/results/posterior_convergence.json)
     "quick": {"fps": 10.0, "max_iter": 150, "n_steps": 200, "fix_styles": True, "n_draws": 3,
               "n_samples": 3, "infer_steps": 150, "gif_stride": 2},
-    # full: the whole posterior, style vectors included, whose 600 steps are far short of
-    # convergence (R-hat in the report), and then the hyperparameters' conditional given the
-    # MAP style vectors run to convergence (conditional_steps; max R-hat <= 1.01 needs about
-    # 127 tau steps after the burn-in, tau about 3 steps: docs/sampling.md). At 20 fps
+    # full: the whole posterior, style vectors included, for as many steps as the default
+    # sampler needs at this size for max R-hat <= 1.01 and min bulk ESS >= 400
+    # (benchmarks/results/posterior_convergence.json: same model, sampler and seed). At 20 fps
     # (N = 680 training frames) one emcee step of the dense posterior costs about 8x more (N^3),
     # which does not fit.
-    "full": {"fps": 10.0, "max_iter": 1000, "n_steps": 600, "fix_styles": False, "n_draws": 8,
-             "n_samples": 8, "infer_steps": 400, "gif_stride": 1, "conditional_steps": 600},
+    "full": {"fps": 10.0, "max_iter": 1000, "n_steps": 1200, "fix_styles": False, "n_draws": 8,
+             "n_samples": 8, "infer_steps": 400, "gif_stride": 1},
 }
-
-CONDITIONAL_NOTE = (
-    "The same model's hyperparameters ({ndim} coordinates) with the training style vectors held "
-    "at the MAP: p(hyperparameters | styles, latents), a conditional of the posterior, not the "
-    "posterior. It is run to convergence here ({steps} steps); the whole posterior above needs "
-    "about 6,000 steps at this size (benchmarks/results/posterior_convergence.json). The "
-    "generated handshakes below use the whole-posterior chain above.")
 
 POSTERIOR_NOTE = {
     True: ("This quick run samples the hyperparameters (gamma, beta, alpha, the AR "
@@ -64,9 +56,10 @@ POSTERIOR_NOTE = {
            "across draws leaves out the styles' uncertainty. The full demo (bayesmotion demo, "
            "without --quick) samples the style vectors too."),
     False: ("The whole posterior over the hyperparameters and the training style vectors "
-            "({ndim} coordinates), the latents at the MAP. The style vectors mix slowly: a "
-            "chain of this length is far short of convergence (R-hat above); "
-            "benchmarks/results/posterior_convergence.json measures how many steps it needs."),
+            "({ndim} coordinates), the latents at the MAP. Its convergence diagnostics, over "
+            "the sampled coordinates and the style vectors' Gram entries, are in the table; "
+            "benchmarks/results/posterior_convergence.json follows the same chain to 2,000 "
+            "steps."),
 }
 
 
@@ -143,20 +136,6 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
                             "max_tau": float(np.max(post.info["tau"])),
                             "warning": post.info.get("warning")}
     plot_posterior(post, path=out / "trace.png", dpi=70)
-    conditional = None
-    if cfg.get("conditional_steps"):
-        t0 = time.perf_counter()
-        conditional = sample_posterior(model, n_steps=cfg["conditional_steps"], seed=seed,
-                                       fix_styles=True)
-        summary["posterior_conditional"] = {
-            **convergence(conditional), "seconds": time.perf_counter() - t0,
-            "style_vectors": "held at the MAP", "n_coordinates": conditional.target.ndim,
-            "n_walkers": conditional.info["n_walkers"],
-            "n_steps": conditional.info["n_steps"], "burn": conditional.info["burn"],
-            "thin": conditional.info["thin"],
-            "max_tau": float(np.max(conditional.info["tau"])),
-            "warning": conditional.info.get("warning")}
-        plot_posterior(conditional, path=out / "trace_conditional.png", dpi=70)
     stage("posterior")
     # 3. posterior-predictive handshakes
     T = ds[0].n_frames
@@ -249,9 +228,6 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
     summary["stage_seconds"] = stages
     summary["seconds_total"] = time.perf_counter() - t_all
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, default=float))
-    conditional_text = (CONDITIONAL_NOTE.format(ndim=conditional.target.ndim,
-                                                steps=cfg["conditional_steps"])
-                        if conditional is not None else "")
     sections = [
         ("MAP fit", [out / "fit_trace.png", f"<p>{d['seconds']:.1f} s, "
                      f"{html.escape(convergence_note(d))}."
@@ -266,11 +242,6 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0) -> dict:
           f"</p>", out / "trace.png", table(
             [[k, f"{v:.3g}" if isinstance(v, float) else v]
              for k, v in summary["posterior"].items()], ["quantity", "value"])]),
-        *([("Posterior (emcee): hyperparameters given the style vectors, to convergence",
-            [f"<p>{html.escape(conditional_text)}</p>", out / "trace_conditional.png", table(
-                [[k, f"{v:.3g}" if isinstance(v, float) else v]
-                 for k, v in summary["posterior_conditional"].items()],
-                ["quantity", "value"])])] if conditional is not None else []),
         ("Generated handshakes", [viewer_fragment(clips, note=(
             "Emotions: posterior-predictive rollouts (faint skeletons: sampled rollouts; discs: "
             "mean +- 2 sd of each joint's position, the GP variance plus the spread across "
