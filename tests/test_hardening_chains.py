@@ -448,3 +448,24 @@ def test_stored_refit_steps_inside_the_adaptation_are_refused(tiny_model, tmp_pa
         bm.sample_posterior(tiny_model, n_steps=20, backend=path, progress=False, burn=4,
                             thin=1)
     assert path.read_bytes() == before
+
+
+def test_a_file_without_refit_steps_resumes_with_none(tiny_model, tmp_path):
+    # a chain file written before the refits (no attribute) resumes with its one fitted
+    # proposal, and a run without an adaptation has no refits
+    from bayesmotion.inference.proposals import refit_steps
+
+    assert refit_steps(0) == [] and refit_steps(150) == [250, 500, 1000]
+    assert refit_steps(300) == [500, 1000]
+    path = tmp_path / "chain.h5"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)
+        bm.sample_posterior(tiny_model, n_steps=16, backend=path, progress=False, burn=4,
+                            thin=1)
+        with h5py.File(path, "a") as f:
+            del f["mcmc"].attrs[REFIT_ATTR]
+        post = bm.sample_posterior(tiny_model, n_steps=20, backend=path, progress=False,
+                                   burn=4, thin=1)
+    assert post.info["n_steps"] == 20 and post.info["refit_steps"] == []
+    with h5py.File(path, "r") as f:
+        assert REFIT_ATTR not in f["mcmc"].attrs

@@ -126,3 +126,14 @@ def test_a_draw_the_map_cannot_take_back_is_refused():
     z = np.array([[0.5], [1.5]])
     new, log_ratio = move.draw(z, np.random.RandomState(0))
     assert np.all(np.isneginf(log_ratio)) and np.array_equal(new, z)
+
+
+def test_a_draw_whose_map_slope_overflows_is_refused_not_accepted():
+    # a finite draw so far out that log|dy/dx| is not finite would give q(new) = 0 and an
+    # infinite ratio: it must be refused like an overflow
+    m = SinhArcsinh(np.array([[0.0, 0.0, 0.0, np.log(0.25)]]))
+    move = IndependenceMove([0], np.zeros(1), np.eye(1) * 1e80, marginal=m, df=1e6)
+    z = np.array([[0.5], [1.5]])
+    new, log_ratio = move.draw(z, np.random.RandomState(0))
+    assert not np.any(log_ratio == np.inf)
+    assert np.all(np.isfinite(log_ratio) | (np.isneginf(log_ratio) & np.all(new == z, 1)))

@@ -340,6 +340,8 @@ def adapt_steps(n_steps: int) -> int:
 
 def refit_steps(n_adapt: int) -> list[int]:
     """The steps (:data:`REFIT_STEPS` past the adaptation's ``n_adapt``) at which the
-    independence proposal is refitted; the same whatever the run's length, so that a run
-    resumed for more steps follows the kernels of one run of the whole length."""
-    return [r for r in REFIT_STEPS if r > n_adapt]
+    independence proposal is refitted; none without an adaptation (its proposal then stays the
+    Laplace approximation). They do not depend on the run's length: stored with a chain file
+    beside the first call's adaptation length, they give a resumed run the first call's
+    kernels."""
+    return [r for r in REFIT_STEPS if r > n_adapt] if n_adapt > 0 else []

@@ -145,9 +145,12 @@ class IndependenceMove(emcee.moves.MHMove):
             return new, self.log_q(z) - self.log_q(new)
         new = self.marginal.inverse(new)
         ok = np.all(np.isfinite(new), 1)
+        new[~ok] = z[~ok]
+        log_q_new = self.log_q(new)
+        ok &= np.isfinite(log_q_new)  # a point so far out that its map's slope overflows
         new[~ok] = z[~ok]  # refused below; a finite point keeps the density finite
         with np.errstate(invalid="ignore"):
-            return new, np.where(ok, self.log_q(z) - self.log_q(new), -np.inf)
+            return new, np.where(ok, self.log_q(z) - log_q_new, -np.inf)
 
     def _propose(self, coords, random):
         x = np.asarray(coords, dtype=float)

@@ -25,7 +25,7 @@ def sas_forward(params, x):
     a = jnp.exp(log_tail) * jnp.arcsinh(z) - skew
     # log cosh a, stable for large |a|
     log_cosh = jnp.abs(a) + jnp.log1p(jnp.exp(-2.0 * jnp.abs(a))) - jnp.log(2.0)
-    log_jac = log_tail - log_scale + log_cosh - 0.5 * jnp.log1p(z * z)
+    log_jac = log_tail - log_scale + log_cosh - jnp.log(jnp.hypot(1.0, z))  # no z * z overflow
     return jnp.sinh(a), jnp.sum(log_jac, -1)
 
 
@@ -121,4 +121,5 @@ class SinhArcsinh:
         loc, log_scale, skew, log_tail = self.params.T
         z = (x - loc) * np.exp(-log_scale)
         a = np.exp(log_tail) * np.arcsinh(z) - skew
-        return np.exp(log_tail - log_scale) * np.cosh(a) / np.sqrt(1.0 + z * z)
+        with np.errstate(over="ignore"):
+            return np.exp(log_tail - log_scale) * np.cosh(a) / np.hypot(1.0, z)
