@@ -26,8 +26,8 @@ from bayesmotion.model.params import simplex_to_style
 # units) is pinned by the likelihood (the rotations keep each style vector's norm, and near its
 # vertex one stick coordinate is that norm), so it joins the non-rotated block (0.2 against 0.1:
 # min bulk ESS 3.1x at the quick demo's size, benchmarks/results/pinned_threshold.json); the first
-# min(ADAPT_STEPS, n_steps // 4) steps propose from the Laplace approximation, the rest from
-# the moments of the adaptation's last two thirds
+# min(ADAPT_STEPS, n_steps // 4) steps propose from the Laplace approximation, the rest from a
+# t fitted to the chain (the adaptation's last two thirds, then REFIT_STEPS)
 PINNED_SD = 0.2
 
 

@@ -70,10 +70,12 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             rotations do not
             move, plus the rotated ones the likelihood pins (Laplace sd < 0.2): a multivariate t (20
             degrees of freedom) proposal from the Laplace approximation at the conditional MAP for
-            the first min(150, n_steps // 4) steps, then from the sample mean and covariance of that
-            adaptation's last two thirds (every walker pooled). Each phase is a fixed kernel; the
-            adaptation is part of the burn-in (``burn`` must cover it, as NUTS's warm-up), and a
-            file resumed with ``backend`` switches where its first run did. One more log-density per
+            the first min(150, n_steps // 4) steps, then a t after a sinh-arcsinh map of each
+            coordinate (:class:`bayesmotion.inference.moves.SinhArcsinh`) fitted to that
+            adaptation's last two thirds and refitted at steps 250, 500 and 1,000 to every state
+            since it (every walker pooled). Each phase is a fixed kernel; the adaptation is part
+            of the burn-in (``burn`` must cover it, as NUTS's warm-up), and a file resumed with
+            ``backend`` switches where its first run did. One more log-density per
             walker and step (at the demo size 0.74 s per step against 0.46 s). ``None`` (default):
             on for the joint emcee sampler with the default moves, off otherwise; ``True`` with
             ``method="nuts"``, user ``moves`` or ``factorise`` raises. Its measured effect at the
@@ -83,8 +85,8 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             centre, the factor idle; :func:`idle_factor_modes` searches for one per factor, at
             the cost of one more conditional MAP and Laplace approximation), the proposal is a
             mixture with one t per mode (weights from their Laplace evidence, each at least
-            0.05; in the second phase each mode's moments come from the adaptation's states
-            nearest it), so a walker jumps between the modes in one accepted step.
+            0.05; after the adaptation each mode's moments come from the fitted states nearest
+            it), so a walker jumps between the modes in one accepted step.
         fix_styles: hold the training style vectors at the model's values and sample the
             hyperparameters alone, p(gamma, beta, alpha, a | S, X, I): a conditional of the
             posterior, not the posterior. The style vectors carry its slow directions (their
