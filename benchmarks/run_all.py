@@ -65,6 +65,7 @@ BENCHMARKS = [
     "compile_cache",
     "style_shear",
     "independence_refit",
+    "walker_batching",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 

@@ -14,8 +14,8 @@ Held at their MAP values: the latents X and I. The target density, in unconstrai
                              + const,
 
 i.e. :class:`bayesmotion.model.logpost.LogPosterior` with the latents fixed. emcee receives it
-jitted
-and ``vmap``-ped over walkers (``vectorize=True``); NUTS (numpyro) gets the same potential.
+jitted over a batch of walkers (``vectorize=True``; :func:`bayesmotion.gp.batch.over_points`
+lays the batch out); NUTS (numpyro) gets the same potential.
 emcee's default moves: differential evolution, exact rotations along the style vectors'
 symmetry orbits (:mod:`bayesmotion.inference.moves`), and an independence Metropolis step on the
 hyperparameters, whose proposal adapts once (see ``sample_posterior(independence=...)``).

@@ -9,6 +9,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from bayesmotion.errors import BayesmotionError
+from bayesmotion.gp.batch import over_points
 from bayesmotion.model.logpost import LAYERS
 from bayesmotion.model.params import (
     AR_KEY,
@@ -55,7 +56,8 @@ class Target:
     """The sampled log-density at one flat-vector boundary.
 
     ``Target(model)`` exposes ``x0`` (flat start), ``names`` (one per coordinate), ``unravel``,
-    ``logp(x)`` (jitted), ``logp_batch(xs)`` (jitted vmap over walkers) and ``full(x)`` (the
+    ``logp(x)`` (jitted), ``logp_batch(xs)`` (jitted, over a batch of walkers:
+    :func:`bayesmotion.gp.batch.over_points`) and ``full(x)`` (the
     complete parameter dict with the fixed latents).
     """
 
@@ -91,7 +93,9 @@ class Target:
         # one compiled value-and-gradient, shared by the conditional MAP and the Laplace step
         self._neg_vg = jax.jit(jax.value_and_grad(
             lambda x, j: -lp({**self.fixed, **self.unravel(x)}, j, which)))
-        self.logp_batch = jax.jit(jax.vmap(logp))
+        # on a CPU in chunks of walkers, one after another: a whole vmapped half-ensemble of
+        # N x N factorisations leaves the caches (bayesmotion.gp.batch)
+        self.logp_batch = jax.jit(over_points(logp))
 
     @property
     def ndim(self) -> int:

@@ -7,6 +7,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bayesmotion.gp.batch import over_points
+
 
 class EnsembleHMC(emcee.moves.Move):
     """Hamiltonian Monte Carlo on a block of coordinates, preconditioned by the ensemble.
@@ -60,7 +62,7 @@ class EnsembleHMC(emcee.moves.Move):
         self.shrinkage = float(shrinkage)
         self._tries = 0
         self._accepts = 0
-        self._trajectory = jax.jit(_leapfrog_fn(jax.vmap(jax.value_and_grad(logp)),
+        self._trajectory = jax.jit(_leapfrog_fn(over_points(jax.value_and_grad(logp)),
                                                 jnp.asarray(block)))
 
     @property

@@ -1,0 +1,58 @@
+"""One point's function over a batch of points (walkers, draws): how the batch is laid out.
+
+``jax.vmap`` turns each N x N kernel matrix and Cholesky factor of a log-density into a stack of
+B of them; on a GPU that is what fills the device. On a CPU the stack of a whole half-ensemble
+(27 x 340 x 340 float64, about 25 MB per matrix) leaves the caches, and every pass over it reads
+main memory: one vmapped log-density of the demo-size posterior cost 1.6 times as much per point
+as the same function point by point inside one program (``jax.lax.map``).
+:func:`over_points` therefore maps over small chunks of points on a CPU and vmaps the whole batch
+elsewhere; ``benchmarks/results/walker_batching.json`` has the times of each layout on the
+2-core target (jax 0.9 and 0.10).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+CPU_CHUNK = 2
+"""Points per vmapped chunk on a CPU (``benchmarks/results/walker_batching.json``)."""
+
+
+def default_chunk() -> int | None:
+    """:data:`CPU_CHUNK` when JAX's default backend is the CPU, else None (one vmap)."""
+    return CPU_CHUNK if jax.default_backend() == "cpu" else None
+
+
+def over_points(fn, chunk: int | None = -1):
+    """``fn`` (one point -> a pytree of arrays) as a function of a batch of points (B, ...).
+
+    Args:
+        fn: a pure JAX function of one point.
+        chunk: points vmapped together, the chunks run one after another under ``lax.map``;
+            None vmaps the whole batch; -1 (the default) is :func:`default_chunk`, read when
+            this function is called.
+    Returns:
+        A function of a batch, equal to ``jax.vmap(fn)`` (to rounding: the same operations
+        on other array shapes); jit it, or call it inside a jitted program.
+    """
+    chunk = default_chunk() if chunk == -1 else chunk
+    if chunk is not None and (isinstance(chunk, bool) or not isinstance(chunk, int)
+                              or chunk < 1):
+        raise ValueError(f"chunk must be a positive integer, None or -1, got {chunk!r}")
+    batched = jax.vmap(fn)
+    if chunk is None:
+        return batched
+
+    def mapped(xs):
+        n = jax.tree_util.tree_leaves(xs)[0].shape[0]
+        c = min(chunk, max(n, 1))
+        pad = -n % c
+        # the padding repeats the first point, so it is a valid input; its values are dropped
+        padded = jax.tree_util.tree_map(
+            lambda a: jnp.concatenate([a, jnp.repeat(a[:1], pad, axis=0)]) if pad else a, xs)
+        chunks = jax.tree_util.tree_map(lambda a: a.reshape(-1, c, *a.shape[1:]), padded)
+        out = jax.lax.map(batched, chunks)
+        return jax.tree_util.tree_map(lambda a: a.reshape(-1, *a.shape[2:])[:n], out)
+
+    return mapped
