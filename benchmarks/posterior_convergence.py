@@ -21,11 +21,12 @@ of the fitted parameters and ``SAMPLER_VERSION``: a run stopped by the suite's t
 with ``steps`` raised (checkpoints past it are skipped), resumes from the file.
 
 Current result (``results/posterior_convergence.json``, full settings, 54 walkers, 26 dims,
-Gram entries counted): both targets are met from 1,000 steps (``["checkpoints"][5]``: max
-R-hat 1.0098, min bulk ESS 5,597; 643 s from scratch), the bulk-ESS target alone from 300
-steps; at 2,000 steps max R-hat 1.0035, min bulk ESS 17,073. Worst coordinates
-(``["worst_coordinate_names"]``): the couple's style coordinates and two emotion Gram entries.
-``["seconds_per_step"]`` 0.64, over the steps sampled after ``["resumed_from_step"]``. The
+Gram entries counted): both targets are met from 800 steps (``["checkpoints"][4]``: max R-hat
+1.0099, min bulk ESS 4,637; 303 s from scratch; at 1,000 steps 1.0077 and 6,613, 379 s), the
+bulk-ESS target alone from 300 steps; at 2,000 steps max R-hat 1.0030, min bulk ESS 15,779.
+Worst coordinates (``["worst_coordinate_names"]``): the couple's style coordinates, the neutral
+emotion's Gram entry and ``log_gamma[2]``. ``["seconds_per_step"]`` 0.38, over the steps
+sampled after ``["resumed_from_step"]``. The
 full demo samples this chain for ``bayesmotion.app.demo.SETTINGS["full"]["n_steps"]`` steps.
 """
 
