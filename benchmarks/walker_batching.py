@@ -51,6 +51,7 @@ def measure(settings: dict) -> dict:
     xs = jnp.asarray(target.x0 + 1e-3 * rng.standard_normal((settings["batch"], target.ndim)))
     fns = {str(c): jax.jit(over_points(target._logp, c)) for c in settings["chunks"]}
     ref = np.asarray(fns["None"](xs))
+    # the points are near the start, where the density is finite
     diff = {k: float(np.max(np.abs(np.asarray(f(xs)) - ref))) for k, f in fns.items()}
     times = {k: [] for k in fns}
     for _ in range(settings["repeats"]):
@@ -75,7 +76,9 @@ def run(quick: bool) -> dict:
     lines = {}
     for name, python in found.items():
         out = subprocess.run([str(python), str(Path(__file__)), "--child", json.dumps(settings)],
-                             capture_output=True, text=True, cwd=str(REPO), check=True)
+                             capture_output=True, text=True, cwd=str(REPO))
+        if out.returncode:
+            raise RuntimeError(f"the {name} child ({python}) failed:\n{out.stderr[-3000:]}")
         lines[name] = json.loads(out.stdout.strip().splitlines()[-1])
         for r in lines[name]["rows"]:
             print(f"  {name} chunk {r['chunk']}: {r['median_ms']:.1f} ms", flush=True)
@@ -87,13 +90,17 @@ def run(quick: bool) -> dict:
             continue
         ratio = by[None]["median_ms"] / chosen["median_ms"]
         heads.append(headline(
-            f"sampled log-density at 27 walkers, jax {res['jax']}: chunks of {CPU_CHUNK} under "
+            f"sampled log-density at {settings['batch']} walkers, jax {res['jax']}: chunks of "
+            f"{CPU_CHUNK} under "
             f"lax.map", chosen["median_ms"], "ms", f"< one vmap ({by[None]['median_ms']:.0f} ms)",
             ratio > 1.0, f"{ratio:.2f}x faster; N = {res['n_frames']}, {res['ndim']} coordinates"))
     return {"settings": settings, "lines": lines, "headline": heads}
 
 
-if __name__ == "__main__":  # a child of run(): one jax line's measurements as JSON
-    import bayesmotion  # noqa: F401  (float64, the package's thread settings)
+if __name__ == "__main__":
+    if sys.argv[1:2] == ["--child"]:  # a child of run(): one jax line's measurements as JSON
+        import bayesmotion  # noqa: F401  (float64, the package's thread settings)
 
-    print(json.dumps(measure(json.loads(sys.argv[2]))))
+        print(json.dumps(measure(json.loads(sys.argv[2]))))
+    else:
+        sys.exit("run it with: python benchmarks/run_all.py --only walker_batching [--quick]")

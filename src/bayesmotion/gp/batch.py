@@ -2,15 +2,17 @@
 
 ``jax.vmap`` turns each N x N kernel matrix and Cholesky factor of a log-density into a stack of
 B of them; on a GPU that is what fills the device. On a CPU the stack of a whole half-ensemble
-(27 x 340 x 340 float64, about 25 MB per matrix) leaves the caches, and every pass over it reads
-main memory: one vmapped log-density of the demo-size posterior cost 1.6 times as much per point
-as the same function point by point inside one program (``jax.lax.map``).
-:func:`over_points` therefore maps over small chunks of points on a CPU and vmaps the whole batch
-elsewhere; ``benchmarks/results/walker_batching.json`` has the times of each layout on the
+(27 x 340 x 340 float64: 0.9 MB per matrix, 25 MB per stack) leaves the caches, and every pass
+over it reads main memory: one vmapped log-density of the demo-size posterior cost 1.6 times as
+much per point as the same function two points at a time inside one program (``jax.lax.map``).
+:func:`over_points` therefore maps over small chunks of points on a CPU and vmaps the whole
+batch elsewhere; ``benchmarks/results/walker_batching.json`` has the times of each layout on the
 2-core target (jax 0.9 and 0.10).
 """
 
 from __future__ import annotations
+
+import operator
 
 import jax
 import jax.numpy as jnp
@@ -36,10 +38,7 @@ def over_points(fn, chunk: int | None = -1):
         A function of a batch, equal to ``jax.vmap(fn)`` (to rounding: the same operations
         on other array shapes); jit it, or call it inside a jitted program.
     """
-    chunk = default_chunk() if chunk == -1 else chunk
-    if chunk is not None and (isinstance(chunk, bool) or not isinstance(chunk, int)
-                              or chunk < 1):
-        raise ValueError(f"chunk must be a positive integer, None or -1, got {chunk!r}")
+    chunk = _chunk(chunk)
     batched = jax.vmap(fn)
     if chunk is None:
         return batched
@@ -47,12 +46,29 @@ def over_points(fn, chunk: int | None = -1):
     def mapped(xs):
         n = jax.tree_util.tree_leaves(xs)[0].shape[0]
         c = min(chunk, max(n, 1))
-        pad = -n % c
+        pad, m = -n % c, -(-n // c)  # padding rows, chunks
         # the padding repeats the first point, so it is a valid input; its values are dropped
         padded = jax.tree_util.tree_map(
             lambda a: jnp.concatenate([a, jnp.repeat(a[:1], pad, axis=0)]) if pad else a, xs)
-        chunks = jax.tree_util.tree_map(lambda a: a.reshape(-1, c, *a.shape[1:]), padded)
+        chunks = jax.tree_util.tree_map(lambda a: a.reshape(m, c, *a.shape[1:]), padded)
         out = jax.lax.map(batched, chunks)
-        return jax.tree_util.tree_map(lambda a: a.reshape(-1, *a.shape[2:])[:n], out)
+        return jax.tree_util.tree_map(lambda a: a.reshape(m * c, *a.shape[2:])[:n], out)
 
     return mapped
+
+
+def _chunk(chunk) -> int | None:
+    """``over_points``'s ``chunk`` resolved (-1: :func:`default_chunk`) and checked."""
+    if chunk is None:
+        return None
+    try:
+        if isinstance(chunk, bool):
+            raise TypeError
+        value = operator.index(chunk)
+    except TypeError:
+        raise ValueError(f"chunk must be a positive integer, None or -1, got {chunk!r}") from None
+    if value == -1:
+        return default_chunk()
+    if value < 1:
+        raise ValueError(f"chunk must be a positive integer, None or -1, got {chunk!r}")
+    return value
