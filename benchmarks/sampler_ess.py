@@ -22,10 +22,10 @@ sampler's wall time (JIT compilation and NUTS warm-up included). For the full bu
 one gradient, and projects the time to 1,000 ESS assuming the small model's ESS per step (emcee)
 and per gradient (NUTS) carry over: a rough, optimistic extrapolation, labelled as such.
 
-Current result (``results/sampler_ess.json``): ``["methods"][m]["min_ess_bulk_per_s"]`` is 4.2
-factorised, 3.3 default, 2.3 DE only, 2.0 HMC, 1.4 loop, 0.64 NUTS (max R-hat 1.008; the emcee
-chains 1.07-1.40); the best projection (``["projected_s_to_1000_ess_builtin"]``), factorised,
-is 19,700 s against the 120 s target.
+Current result (``results/sampler_ess.json``): ``["methods"][m]["min_ess_bulk_per_s"]`` is 45
+default, 13 factorised, 7.0 DE only, 5.8 HMC, 5.8 loop, 2.6 NUTS (NUTS max R-hat 1.008, the
+default emcee chain 1.016, the others 1.04-1.17); the best projection
+(``["projected_s_to_1000_ess_builtin"]``), the default, is 1,743 s against the 120 s target.
 """
 
 from __future__ import annotations

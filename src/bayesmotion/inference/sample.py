@@ -62,9 +62,10 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             rotations do not move (the hyperparameters and two-level style vectors: nearly
             Gaussian but strongly correlated, where DE crawls, autocorrelation time ~300 steps
             at the demo size), one on the rotated style vectors (heavy-tailed: smaller steps).
-            A step costs about 18x a DE step at the demo size (8.4 s against 0.46 s: about 4
-            gradients per walker and block). Off by default: no long run has shown it to
-            mix faster per second than the default moves.
+            A step costs about 13x an evaluation of every walker at the built-in size (about 4
+            gradients per walker and block; ``benchmarks/results/sampler_ess.json``, key
+            ``eval_costs.builtin``). Off by default: no long run has shown it to mix faster
+            per second than the default moves.
         independence: add, after DE and the rotations, an independence Metropolis step
             (:class:`bayesmotion.inference.moves.IndependenceMove`) on the coordinates the
             rotations do not
@@ -76,7 +77,7 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             since it (every walker pooled). Each phase is a fixed kernel; the adaptation is part
             of the burn-in (``burn`` must cover it, as NUTS's warm-up), and a file resumed with
             ``backend`` switches where its first run did. One more log-density per
-            walker and step (at the demo size 0.74 s per step against 0.46 s). ``None`` (default):
+            walker and step (twice DE's). ``None`` (default):
             on for the joint emcee sampler with the default moves, off otherwise; ``True`` with
             ``method="nuts"``, user ``moves`` or ``factorise`` raises. Its measured effect at the
             demo
