@@ -36,7 +36,7 @@ SETTINGS = {
     # quick: sized for the 3-minute target on 2 cores. Its posterior section samples the
     # hyperparameters with the style vectors held at the MAP (sample_posterior(fix_styles=True)),
     # a conditional of the posterior that converges within this budget; the whole posterior
-    # of this model needs 400 steps (164 s) for max R-hat <= 1.05
+    # of this model reaches max R-hat <= 1.05 at 400 steps (168 s), not at 200
     # (benchmarks/results/demo_posterior.json)
     "quick": {"fps": 10.0, "max_iter": 150, "n_steps": 200, "fix_styles": True, "n_draws": 3,
               "n_samples": 3, "infer_steps": 150, "gif_stride": 2},
