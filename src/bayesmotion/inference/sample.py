@@ -77,7 +77,7 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
             since it (every walker pooled). Each phase is a fixed kernel; the adaptation is part
             of the burn-in (``burn`` must cover it, as NUTS's warm-up), and a file resumed with
             ``backend`` switches where its first run did. One more log-density per
-            walker and step (twice DE's). ``None`` (default):
+            walker and step: two per walker with DE's. ``None`` (default):
             on for the joint emcee sampler with the default moves, off otherwise; ``True`` with
             ``method="nuts"``, user ``moves`` or ``factorise`` raises. Its measured effect at the
             demo
