@@ -200,3 +200,28 @@ def test_convergence_note_reads_older_and_abnormal_diagnostics():
         "iterations)")
     assert convergence_note({}) == "not converged; the stall test's result is not recorded"
     assert convergence_note({"converged": True}) == "converged"
+
+
+def test_map_optimize_hands_every_iterate_to_the_callback_without_changing_the_run():
+    from bayesmotion.optim.minimize import map_optimize
+
+    def logp(p, jitter):  # 6-D Rosenbrock in two named blocks
+        x = jnp.concatenate([p["a"], p["b"]])
+        return -jnp.sum(100.0 * (x[1:] - x[:-1] ** 2) ** 2 + (1.0 - x[:-1]) ** 2)
+
+    x0 = {"a": jnp.array([-1.2, 1.0, -1.2]), "b": jnp.array([1.0, -1.2, 1.0])}
+    seen = []
+    keep = lambda it, params, objective: seen.append((it, params, objective))  # noqa: E731
+    with_cb, d_cb = map_optimize(logp, x0, max_iter=60, rtol=0.0, progress=False,
+                                 callback=keep)
+    plain, d = map_optimize(logp, x0, max_iter=60, rtol=0.0, progress=False)
+    assert [s[0] for s in seen] == list(range(1, d_cb["iterations"] + 1))
+    assert [s[2] for s in seen] == d_cb["trace"] == d["trace"]
+    for k in ("a", "b"):
+        np.testing.assert_array_equal(with_cb[k], plain[k])
+    # each iterate is the dict the objective was evaluated at: its value is the traced one
+    for _, params, objective in seen[::7]:
+        assert set(params) == {"a", "b"} and params["a"].shape == (3,)
+        assert -float(logp(params, 0.0)) == pytest.approx(objective, rel=1e-12)
+    # the final iterate is the returned optimum
+    np.testing.assert_array_equal(seen[-1][1]["b"], with_cb["b"])

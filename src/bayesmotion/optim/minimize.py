@@ -64,7 +64,8 @@ def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: f
                  ftol: float = 1e-10, rtol: float = CONVERGENCE_RTOL,
                  window: int = CONVERGENCE_WINDOW, max_seconds: float | None = None,
                  progress: bool = True,
-                 desc: str = "MAP", value_and_grad: Callable | None = None
+                 desc: str = "MAP", value_and_grad: Callable | None = None,
+                 callback: Callable[[int, dict, float], None] | None = None
                  ) -> tuple[dict, dict]:
     """Maximise ``logp(params, jitter)`` over a parameter dict.
 
@@ -116,8 +117,12 @@ def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: f
     trace = []
     bar = tqdm(total=max_iter, desc=desc, disable=not progress, leave=False)
 
-    def callback(intermediate_result):
+    def on_iteration(intermediate_result):
         trace.append(float(intermediate_result.fun))
+        if callback is not None:
+            callback(len(trace), {k: np.asarray(v) for k, v in
+                                  unravel(jnp.asarray(intermediate_result.x)).items()},
+                     trace[-1])
         bar.update(1)
         bar.set_postfix(objective=f"{intermediate_result.fun:.4g}")
         if rtol > 0 and stalled(trace, window, rtol)[0]:
@@ -130,7 +135,7 @@ def map_optimize(logp: Callable, params0: dict, *, max_iter: int = 1000, gtol: f
     initial = float(vg(x0, JITTER_LADDER[0])[0])  # compiles the objective once, then reused
     state["t_opt"] = time.perf_counter()
     res = scipy.optimize.minimize(fun, np.asarray(x0, dtype=np.float64), jac=True,
-                                  method="L-BFGS-B", callback=callback,
+                                  method="L-BFGS-B", callback=on_iteration,
                                   options={"maxiter": max_iter, "gtol": gtol, "ftol": ftol,
                                            "maxcor": 20})
     bar.close()
