@@ -40,6 +40,7 @@ from _common import RESULTS, machine_info, write_json, write_text  # noqa: E402
 BENCHMARKS = [
     "gplvm_vs_gpy",
     "fit_time",
+    "fit_convergence",
     "eval_scaling",
     "generation_fps",
     "sampler_ess",
