@@ -152,9 +152,8 @@ def run(quick: bool) -> dict:
     floored_var = {k: float(np.exp(-floor_params[k][i]) + floors[k])
                    for k, i in NOISE_ENTRY.items()}
 
-    first, last = records[0], records[-1]
-    at_hold = next(r for r in records if r["iteration"] == cfg["hold_at"]) \
-        if any(r["iteration"] == cfg["hold_at"] for r in records) else first
+    last = records[-1]
+    at_hold = {r["iteration"]: r for r in records}[cfg["hold_at"]]  # a multiple of "every"
     by_layer = {k: last["terms"][k] - at_hold["terms"][k] for k in last["terms"]}
     noise_ratio = {layer: last["hyper"][layer]["noise_variance"]
                    / at_hold["hyper"][layer]["noise_variance"] for layer in last["hyper"]}
