@@ -257,3 +257,15 @@ def test_fit_says_whether_it_converged(capsys, tmp_path):
     printed = capsys.readouterr().out
     assert "not converged: stopped at its iteration limit after 3 iterations" in printed
     assert out.stat().st_size > 0
+
+
+def test_fit_takes_a_mapping_noise_floor(capsys, tmp_path):
+    out = tmp_path / "m.npz"
+    assert main(["fit", "builtin:handshakes", "--fps", "5", "--max-iter", "3",
+                 "--latent-dim", "2", "--interaction-dim", "2", "--mapping-noise-floor",
+                 "0.01", "--out", str(out)]) == 0
+    m = bm.load(out)
+    assert m.spec.mapping_noise_floor == 0.01
+    for k in ("gamma", "beta"):
+        assert 1 / m.hyperparameters[k][2] >= 0.01
+

@@ -126,6 +126,11 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--inducing", type=int, default=None, metavar="M",
                    help="the sparse model with M inducing points per layer (O(N M^2) instead "
                         "of O(N^3); for corpora beyond a few thousand frames)")
+    f.add_argument("--mapping-noise-floor", type=float, default=0.0, metavar="VAR",
+                   help="least noise variance of the bottom and interaction layers, in their "
+                        "outputs' units (HGPDM(mapping_noise_floor=...); default 0: none; "
+                        "1e-3 keeps generated gestures as smooth as real ones, see "
+                        "docs/model.md)")
     s = add("sample", "emcee posterior of a fitted model")
     s.add_argument("model")
     s.add_argument("--out", required=True)
@@ -315,6 +320,8 @@ def _cmd_fit(a):
     validate.integer(a.interaction_dim, "--interaction-dim", low=1)
     if a.inducing is not None:
         validate.integer(a.inducing, "--inducing", low=2)
+    if a.mapping_noise_floor != 0.0:
+        validate.real(a.mapping_noise_floor, "--mapping-noise-floor", above=0.0)
     validate.output_file(a.out, "--out")
     _check_data(a.data, a.fps)
     ds = load_data(a.data, a.fps)
@@ -325,7 +332,8 @@ def _cmd_fit(a):
         f"fitting {N} frames")
     m = HGPDM(latent_dim=a.latent_dim, interaction_dim=a.interaction_dim,
               rest_frames=a.rest_frames, canonical_side=a.canonical_side,
-              pose_space=a.pose_space, inducing=a.inducing).fit(
+              pose_space=a.pose_space, inducing=a.inducing,
+              mapping_noise_floor=a.mapping_noise_floor).fit(
         ds, max_iter=a.max_iter)
     m.save(a.out)
     d = m.diagnostics

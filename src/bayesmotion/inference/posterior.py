@@ -43,6 +43,7 @@ from bayesmotion.inference.diagnostics import (
 from bayesmotion.inference.predictive import generate_posterior
 from bayesmotion.inference.target import Target, chain_gram
 from bayesmotion.model.generate import SAMPLE_MEMORY
+from bayesmotion.model.logpost import constrained
 from bayesmotion.model.params import AR_KEY, STYLE_PREFIX, ar_coefficients, style_to_simplex
 from bayesmotion.model.predict import condition
 
@@ -90,7 +91,8 @@ class Posterior:
     def constrained(self) -> dict[str, np.ndarray]:
         """name -> (n_chains, n_draws, ...) gamma, beta, alpha and style_<factor>."""
         C, D, _ = self.chains.shape
-        vmapped = jax.jit(jax.vmap(lambda x: _constrain(self.target.unravel(x))))
+        vmapped = jax.jit(jax.vmap(lambda x: _constrain(self.target.unravel(x),
+                                                       self.model.spec.mapping_noise_floor)))
         out = vmapped(jnp.asarray(self.flat()))
         return {k: np.asarray(v).reshape(C, D, *v.shape[1:]) for k, v in out.items()}
 
@@ -143,8 +145,8 @@ class Posterior:
                                   **styles)
 
 
-def _constrain(p: dict) -> dict:
-    out = {k[4:]: jnp.exp(v) for k, v in p.items() if k.startswith("log_")}
+def _constrain(p: dict, mapping_noise_floor: float = 0.0) -> dict:
+    out = constrained(p, mapping_noise_floor)
     if AR_KEY in p:
         out["ar"] = ar_coefficients(p[AR_KEY])
     for k, v in p.items():

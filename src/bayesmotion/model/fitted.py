@@ -121,7 +121,8 @@ class FittedHGPDM:
     def hyperparameters(self) -> dict[str, np.ndarray]:
         """gamma, beta, alpha (constrained, positive) and, with the default stable dynamics,
         ``ar``: the autoregression's coefficients (a_1, .., a_o)."""
-        out = {k: np.asarray(v) for k, v in constrained(self.params).items()}
+        h = constrained(self.params, self.spec.mapping_noise_floor)
+        out = {k: np.asarray(v) for k, v in h.items()}
         ar = ar_of(self.params)
         if ar is not None:
             out["ar"] = np.asarray(ar)

@@ -65,9 +65,23 @@ def ar_of(params: dict):
     return ar_coefficients(params[AR_KEY]) if AR_KEY in params else None
 
 
-def constrained(params: dict) -> dict:
-    """Positive hyperparameters from their logs."""
-    return {k[4:]: jnp.exp(v) for k, v in params.items() if k.startswith("log_")}
+#: the entry of ``log_gamma`` and ``log_beta`` that is the layer's noise precision
+NOISE_ENTRY = 2
+
+
+def constrained(params: dict, mapping_noise_floor: float = 0.0) -> dict:
+    """Positive hyperparameters from their logs. With ``mapping_noise_floor`` > 0 (the model's
+    :attr:`~bayesmotion.model.spec.HGPDM.mapping_noise_floor`) the noise precisions of the
+    bottom and interaction layers are ``1 / (exp(-l) + floor)``: their noise variance is the
+    floor plus a free part, so it cannot fall below the floor at any parameter value."""
+    out = {k[4:]: jnp.exp(v) for k, v in params.items() if k.startswith("log_")}
+    if mapping_noise_floor:
+        for k in ("gamma", "beta"):
+            if k in out:
+                free = params["log_" + k][NOISE_ENTRY]
+                out[k] = out[k].at[NOISE_ENTRY].set(
+                    1.0 / (jnp.exp(-free) + mapping_noise_floor))
+    return out
 
 
 LAYERS = ("bottom", "interaction", "dynamics")
@@ -124,7 +138,7 @@ class LogPosterior:
             raise BayesmotionError(f"unknown layers {sorted(unknown)}; expected some of "
                                    f"{LAYERS}")
         params = {k: jnp.asarray(v) for k, v in params.items()}
-        h = constrained(params)
+        h = constrained(params, self.spec.mapping_noise_floor)
         X, I = params["X"], params["I"]
         A = X.shape[0]
         terms = {k: jnp.zeros(()) for k in LAYERS}

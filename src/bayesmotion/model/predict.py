@@ -222,7 +222,7 @@ def sparse_layers(spec, data, params, jitter) -> dict:
     dynamics targets less the autoregressive mean), "interaction": SparseLayer, "bottom": one
     per actor}. :func:`condition` makes its predictor from them, and the out-of-distribution
     reference (:mod:`bayesmotion.emotion.ood`) the training rows' held-out residuals."""
-    h = constrained(params)
+    h = constrained(params, spec.mapping_noise_floor)
     index = layers.DynamicsIndex(data.lengths, spec.order, data.loops)
     plan = layers.InducingPlan(int(np.sum(data.lengths)), index, spec.inducing)
     S = trial_styles(params, data)
@@ -260,7 +260,7 @@ def _condition_sparse(spec, data, params, jitter) -> Predictor:
     """:func:`_condition` of the sparse model: every layer conditioned through its inducing
     inputs, which take the training inputs' place in the :class:`Predictor`."""
     L = sparse_layers(spec, data, params, jitter)
-    h = constrained(params)
+    h = constrained(params, spec.mapping_noise_floor)
     ar = ar_of(params)
     bottom = [_sparse_fit(b) for b in L["bottom"]]
     vectors = _level_vectors(spec, data, params)
@@ -274,7 +274,7 @@ def _condition_sparse(spec, data, params, jitter) -> Predictor:
 def _condition(spec, data, params, jitter, blocked=True) -> Predictor:
     if spec.inducing is not None:
         return _condition_sparse(spec, data, params, jitter)
-    h = constrained(params)
+    h = constrained(params, spec.mapping_noise_floor)
     index = layers.DynamicsIndex(data.lengths, spec.order, data.loops)
     S = trial_styles(params, data)
     tof = data.trial_of_frame
