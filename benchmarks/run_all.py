@@ -48,6 +48,7 @@ BENCHMARKS = [
     "study_interpolation",
     "synthesis",
     "foot_contacts",
+    "noise_floor",
     "transition_lengths",
     "sample_paths",
     "bandai_inference",

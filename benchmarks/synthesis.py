@@ -46,8 +46,13 @@ below is generated with ``lookahead`` (``FittedHGPDM.generate(lookahead=...)``).
   stable autoregression and Wang et al.'s balanced dynamics weight D / Q_I; then the walks
   model itself (periodic) without and with the look-ahead; the long-rollout statistics
   (the judge's probabilities included) of the mean and of two sampled rollouts of each.
-* **Fit.** Iterations, seconds and whether the convergence criterion was met
-  (``FittedHGPDM.diagnostics``).
+* **Fit.** Iterations, seconds, each layer's noise variance and whether the convergence
+  criterion was met (``FittedHGPDM.diagnostics``).
+
+``Settings.mapping_noise_floor`` fits every model (the groups' and the handshakes') with
+``HGPDM(mapping_noise_floor=...)`` (0, the plain model, here); ``Settings.extras=False`` leaves
+out the walks' transitions and mechanisms. ``benchmarks/noise_floor.py`` runs the groups with
+and without a floor and after longer fits through these settings.
 
 ``TARGETS`` are the issue's: synthesized rate >= natural rate - 5 points per group; jerk and
 foot-sliding ratios <= 1.2; long walk rollouts within 2x the training latent range with limb
@@ -121,11 +126,21 @@ class Settings:
     seed: int = 0
     periodic: tuple = ("walks", "run")  # groups fitted with HGPDM(periodic=True)
     lookahead: float = 10.0  # generate(lookahead=...) of every Bandai rollout
+    mapping_noise_floor: float = 0.0  # HGPDM(mapping_noise_floor=...) of every fit
+    extras: bool = True  # the walks' transitions and mechanisms
 
 
 QUICK = Settings(groups={"walks": ("walk", "walk-back")}, max_iter=150, n_samples=1,
                  long_frames=300, transition_frames=160, handshake_iter=100)
 """One group of two walk contents, 150 iterations: about 2 minutes on 2 cores."""
+
+
+def noise_variances(model) -> dict:
+    """Each layer's noise variance (its floor included) of a fitted model, in its outputs'
+    units (standardised poses; X; I)."""
+    h = model.hyperparameters
+    return {layer: float(1.0 / h[k][i]) for k, i, layer in
+            (("gamma", 2, "bottom"), ("beta", 2, "interaction"), ("alpha", -1, "dynamics"))}
 
 
 def joint_speed(angles: np.ndarray) -> np.ndarray:
@@ -302,12 +317,13 @@ def handshakes(cfg: Settings) -> dict:
     """The built-in handshakes: hands meet, long rollouts stay bounded (module docstring)."""
     data = load_handshakes()
     t0 = time.perf_counter()
-    model = HGPDM().fit(data, max_iter=cfg.handshake_iter, seed=cfg.seed, progress=False)
+    model = HGPDM(mapping_noise_floor=cfg.mapping_noise_floor).fit(
+        data, max_iter=cfg.handshake_iter, seed=cfg.seed, progress=False)
     fit_s = time.perf_counter() - t0
     d_real = float(hand_distance(load_cmu_handshake()).min())
     rng = float(np.abs(np.asarray(model.params["I"])).max())
-    out = {"fit": {"seconds": fit_s, **{k: v for k, v in model.diagnostics.items()
-                                        if k != "trace"}},
+    out = {"fit": {"seconds": fit_s, "noise_variances": noise_variances(model),
+                   **{k: v for k, v in model.diagnostics.items() if k != "trace"}},
            "real_min_hand_distance": d_real, "emotions": {}}
     for e in model.levels["emotion"]:
         row = {}
@@ -346,7 +362,8 @@ def fit_group(name: str, data: MotionDataset, contents: tuple, cfg: Settings):
     trials = [t for t in data if t.labels["content"] in contents]
     group = MotionDataset(tuple(trials), {"emotion": data.levels["emotion"]}, name=name)
     spec = HGPDM(rest_frames=True, canonical_side=True, interaction_factors=("emotion",),
-                 dynamics_factors=("emotion",), periodic=name in cfg.periodic)
+                 dynamics_factors=("emotion",), periodic=name in cfg.periodic,
+                 mapping_noise_floor=cfg.mapping_noise_floor)
     t0 = time.perf_counter()
     model = spec.fit(group, max_iter=cfg.max_iter, seed=cfg.seed, progress=False)
     return group, model, time.perf_counter() - t0
@@ -397,12 +414,14 @@ def group_run(name: str, data: MotionDataset, contents: tuple, judges: dict,
         clips.append(row)
     long = long_rollouts(model, real_speed, cfg, judge=full_judge)
     ok_long = [v for v in long.values() if "error" not in v]
-    trans = transitions(model, full_judge, cfg) if name == "walks" else None
-    mech = mechanisms(group, model, real_speed, cfg, full_judge) if name == "walks" else None
+    extras = name == "walks" and cfg.extras
+    trans = transitions(model, full_judge, cfg) if extras else None
+    mech = mechanisms(group, model, real_speed, cfg, full_judge) if extras else None
     mean_nat = {k: float(np.mean([n[k] for n in nat])) for k in nat[0]} if nat else {}
     return {
         "contents": list(contents), "clips": clips,
         "fit": {"seconds": fit_s, "frames": int(sum(t.n_frames for t in trials)),
+                "noise_variances": noise_variances(model),
                 **{k: v for k, v in model.diagnostics.items() if k not in ("trace",)}},
         "synthesized_rate": {k: float(np.mean(v)) if v else None for k, v in judged.items()},
         "naturalness": mean_nat,

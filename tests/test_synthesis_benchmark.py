@@ -10,6 +10,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import foot_contacts  # noqa: E402
+import noise_floor  # noqa: E402
 import synthesis  # noqa: E402
 import transition_lengths  # noqa: E402
 
@@ -45,7 +46,7 @@ def test_targets_are_judged_against_the_natural_rate():
     assert not synthesis.targets_met(g)["long_latent_range"]
 
 
-@pytest.mark.parametrize("bench", [synthesis, foot_contacts, transition_lengths])
+@pytest.mark.parametrize("bench", [synthesis, foot_contacts, transition_lengths, noise_floor])
 def test_missing_data_writes_a_skip_record(tmp_path, bench):
     out = tmp_path / "s.json"
     res = bench.run(True, root=tmp_path / "nowhere", out=out)
@@ -67,7 +68,8 @@ def test_foot_contacts_scores_are_the_mean_naturalness_ratios():
     assert got["foot_sliding_ratio"] == pytest.approx((1.0 + rows[1]["foot_sliding_ratio"]) / 2)
 
 
-@pytest.mark.parametrize("name", ["synthesis", "foot_contacts", "transition_lengths"])
+@pytest.mark.parametrize("name", ["synthesis", "foot_contacts", "transition_lengths",
+                                  "noise_floor"])
 def test_the_benchmark_is_in_the_suite(name):
     import run_all
 
