@@ -11,16 +11,17 @@ changes it. Each cell is one fit and its generated clips exactly as in
 real clip, naturalness ratios against the group's real clips, 1,000-frame rollouts; the walks'
 transitions and mechanisms are left out), for:
 
-* the floor 0 (the plain model, today's default) and ``FLOOR``, side by side in one run;
+* the floor 0 (the plain model, the default) and ``FLOOR``, side by side in one run;
 * ``ITERATIONS`` L-BFGS iterations: the synthesis benchmark's 1,000, and 3,000 for the groups
-  in ``LONG_GROUPS`` (the walks' fit takes about 7 minutes per 1,000 iterations here, so they
+  in ``LONG_GROUPS`` (the walks' fit takes about 5 minutes per 1,000 iterations here, so they
   are fitted for 1,000 only). How much a cell's numbers change from 1,000 to 3,000 iterations
   is how much the fits' non-convergence reaches the generated motion.
 * the built-in handshakes (``HGPDM(mapping_noise_floor=...).fit(load_handshakes())``, 1,000
   iterations): the minimum right-hand distance and 1,000-frame rollouts per emotion.
 
-Cells run two at a time in separate processes (the 2 cores). ``TARGETS`` are #34's
-naturalness and classification targets (``synthesis.TARGETS``), reported as met or not.
+Cells run two at a time in separate processes (the 2 cores). The targets are the synthesis
+benchmark's naturalness and classification targets (``synthesis.TARGETS``), reported as met
+or not.
 ``run(quick)`` writes ``results/noise_floor.json`` atomically.
 """
 

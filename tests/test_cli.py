@@ -266,6 +266,7 @@ def test_fit_takes_a_mapping_noise_floor(capsys, tmp_path):
                  "0.01", "--out", str(out)]) == 0
     m = bm.load(out)
     assert m.spec.mapping_noise_floor == 0.01
-    for k in ("gamma", "beta"):
-        assert 1 / m.hyperparameters[k][2] >= 0.01
+    for k in ("gamma", "beta"):  # the noise variance is the floor plus the stored free part
+        free = np.exp(-m.params["log_" + k][2])
+        assert 1 / m.hyperparameters[k][2] == pytest.approx(0.01 + free, rel=1e-12)
 

@@ -111,6 +111,8 @@ CASES = {
                               "memory"),
     "fit --mapping-noise-floor -1": (FIT + ["--mapping-noise-floor", "-1", "--out", "n.npz"],
                                      "--mapping-noise-floor must be"),
+    "fit --mapping-noise-floor 2": (FIT + ["--mapping-noise-floor", "2", "--out", "n.npz"],
+                                    "--mapping-noise-floor must be"),
     "fit --mapping-noise-floor nan": (FIT + ["--mapping-noise-floor", "nan", "--out",
                                              "n.npz"], "--mapping-noise-floor must be"),
     "fit --out DIR": (FIT + ["--out", "adir"], "is a folder"),

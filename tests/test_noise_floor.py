@@ -8,7 +8,7 @@ import pytest
 
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.data import fit_codecs, prepare_data
-from bayesmotion.model.fit import init_params
+from bayesmotion.model.fit import init_params, initial_inducing
 from bayesmotion.model.io import load as load_model
 from bayesmotion.model.logpost import NOISE_ENTRY, LogPosterior, constrained
 from bayesmotion.model.spec import HGPDM
@@ -40,6 +40,15 @@ def test_a_bad_floor_is_refused(bad):
         HGPDM(mapping_noise_floor=bad)
 
 
+def _mapped(params):
+    """The plain model's log precisions that give the floored model's noise at ``params``."""
+    out = dict(params)
+    for k in ("log_gamma", "log_beta"):
+        out[k] = params[k].at[NOISE_ENTRY].set(
+            -jnp.log(jnp.exp(-params[k][NOISE_ENTRY]) + FLOOR))
+    return out
+
+
 def test_the_floored_likelihood_is_the_plain_one_at_the_floored_precisions():
     """Numerical reference: every layer's log-likelihood of the floored model at free log
     precision l equals the plain model's at log(1 / (exp(-l) + floor)); only the prior, which
@@ -50,10 +59,7 @@ def test_the_floored_likelihood_is_the_plain_one_at_the_floored_precisions():
                          mapping_noise_floor=FLOOR).resolved(ds)
     data = prepare_data(plain_spec, ds, fit_codecs(plain_spec, ds))
     params = {k: jnp.asarray(v) for k, v in init_params(plain_spec, data, 0).items()}
-    mapped = dict(params)
-    for k in ("log_gamma", "log_beta"):
-        mapped[k] = params[k].at[NOISE_ENTRY].set(
-            -jnp.log(jnp.exp(-params[k][NOISE_ENTRY]) + FLOOR))
+    mapped = _mapped(params)
     floored = LogPosterior(floored_spec, data).layer_terms(params, 1e-8)
     plain = LogPosterior(plain_spec, data).layer_terms(mapped, 1e-8)
     for layer in ("bottom", "interaction", "dynamics"):
@@ -61,11 +67,24 @@ def test_the_floored_likelihood_is_the_plain_one_at_the_floored_precisions():
     # and the floor matters at these parameters (the initial noise is near the floor)
     unfloored = LogPosterior(plain_spec, data).layer_terms(params, 1e-8)
     assert abs(float(floored["bottom"]) - float(unfloored["bottom"])) > 1.0
-    # the plain model is the floor-0 model, term by term
-    zero = LogPosterior(HGPDM(latent_dim=3, interaction_dim=3,
-                              mapping_noise_floor=0.0).resolved(ds), data)
-    for layer, v in zero.layer_terms(params, 1e-8).items():
-        assert float(v) == float(unfloored[layer])
+
+
+def test_the_sparse_model_sees_the_floor_too():
+    ds = make_tiny_dataset()
+    spec = HGPDM(latent_dim=3, interaction_dim=3, inducing=12).resolved(ds)
+    data = prepare_data(spec, ds, fit_codecs(spec, ds))
+    params = init_params(spec, data, 0)
+    logp = LogPosterior(spec, data)
+    params.update(initial_inducing(np.asarray(params["X"]), np.asarray(params["I"]),
+                                   logp.index, spec.inducing))
+    params = {k: jnp.asarray(v) for k, v in params.items()}
+    floored = LogPosterior(HGPDM(latent_dim=3, interaction_dim=3, inducing=12,
+                                 mapping_noise_floor=FLOOR).resolved(ds), data)
+    got = floored.layer_terms(params, 1e-8)
+    want = logp.layer_terms(_mapped(params), 1e-8)
+    for layer in ("bottom", "interaction", "dynamics"):
+        np.testing.assert_allclose(float(got[layer]), float(want[layer]), rtol=1e-10)
+    assert abs(float(got["bottom"]) - float(logp.layer_terms(params, 1e-8)["bottom"])) > 1.0
 
 
 @pytest.fixture(scope="module")
@@ -74,15 +93,20 @@ def floored_model():
         make_tiny_dataset(), max_iter=80, progress=False)
 
 
-def test_a_fit_with_a_floor_keeps_its_noise_above_it_and_generates(floored_model):
+def test_a_floored_fit_predicts_and_generates_with_the_floored_noise(floored_model):
+    from bayesmotion.model.predict import noise_variances
+
+    p = floored_model.params
+    free = {k: float(np.exp(-p["log_" + k][NOISE_ENTRY])) for k in ("gamma", "beta")}
     h = floored_model.hyperparameters
     for k in ("gamma", "beta"):
-        assert 1 / h[k][NOISE_ENTRY] >= FLOOR
+        assert 1 / h[k][NOISE_ENTRY] == pytest.approx(FLOOR + free[k], rel=1e-12)
+    noise = noise_variances(floored_model.predictor())
+    assert float(noise["Y"]) == pytest.approx(FLOOR + free["gamma"], rel=1e-12)
+    assert float(noise["X"]) == pytest.approx(FLOOR + free["beta"], rel=1e-12)
     roll = floored_model.generate(emotion=floored_model.levels["emotion"][0], n_frames=60,
                                   n_samples=2)
     assert np.all(np.isfinite(roll.positions)) and np.all(np.isfinite(roll.samples["Y"]))
-    # the bottom layer's predictive variance includes at least the floor at every frame
-    assert np.all(roll.Y_var[:, roll.n_observed:] >= FLOOR * (1 - 1e-9))
 
 
 def test_a_floored_model_file_round_trips(floored_model, tmp_path):
@@ -103,7 +127,7 @@ def test_files_without_the_field_load_as_the_plain_model(floored_model):
 
 def test_the_posterior_samples_the_floored_model(floored_model):
     """The samplers see the same density: every draw's noise variances are above the floor,
-    and each draw's log-density is the floored model's."""
+    and each draw's log-density is the floored model's, not the plain one's."""
     import warnings
 
     import bayesmotion as bm
@@ -117,4 +141,8 @@ def test_the_posterior_samples_the_floored_model(floored_model):
     i = post.n_draws // 2
     lp = float(np.asarray(post.log_prob).reshape(-1)[i])
     assert floored_model.log_posterior(post.params(i)) == pytest.approx(lp, rel=1e-9, abs=1e-6)
+    # ... and not the plain model's at the same parameters
+    plain = LogPosterior(HGPDM(latent_dim=3, interaction_dim=3).resolved(make_tiny_dataset()),
+                         floored_model.data)
+    assert abs(float(plain(post.params(i), 1e-8)) - lp) > 1.0
 

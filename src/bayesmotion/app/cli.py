@@ -128,9 +128,9 @@ def _parser() -> argparse.ArgumentParser:
                         "of O(N^3); for corpora beyond a few thousand frames)")
     f.add_argument("--mapping-noise-floor", type=float, default=0.0, metavar="VAR",
                    help="least noise variance of the bottom and interaction layers, in their "
-                        "outputs' units (HGPDM(mapping_noise_floor=...); default 0: none; "
-                        "1e-3 keeps generated gestures as smooth as real ones, see "
-                        "docs/model.md)")
+                        "outputs' units, at most 1 (HGPDM(mapping_noise_floor=...); default "
+                        "0: none; 1e-3 keeps generated gestures as smooth as real ones but "
+                        "lets long run rollouts wander, see docs/model.md)")
     s = add("sample", "emcee posterior of a fitted model")
     s.add_argument("model")
     s.add_argument("--out", required=True)
@@ -321,7 +321,7 @@ def _cmd_fit(a):
     if a.inducing is not None:
         validate.integer(a.inducing, "--inducing", low=2)
     if a.mapping_noise_floor != 0.0:
-        validate.real(a.mapping_noise_floor, "--mapping-noise-floor", above=0.0)
+        validate.real(a.mapping_noise_floor, "--mapping-noise-floor", above=0.0, at_most=1.0)
     validate.output_file(a.out, "--out")
     _check_data(a.data, a.fps)
     ds = load_data(a.data, a.fps)

@@ -81,15 +81,16 @@ class HGPDM:
             handshake should come to rest, not repeat.
         mapping_noise_floor: the least noise variance of the two mapping layers, bottom
             (latents X to the standardised poses Y) and interaction (I to X), in their
-            outputs' units: each noise variance is this floor plus a free, fitted part
-            (:func:`bayesmotion.model.logpost.constrained`), in the MAP, the samplers and
-            every prediction alike; the dynamics' noise stays free. 0 (the default) is the
-            plain model, whose MAP keeps shrinking these noises while it runs, and whose
+            outputs' units (at most 1, those outputs' scale): each noise variance is this
+            floor plus a free, fitted part (:func:`bayesmotion.model.logpost.constrained`), in
+            the MAP, the samplers and every prediction alike; the dynamics' noise stays free.
+            0 (the default) is the plain model, whose MAP drives these noises to 1e-5-1e-7 of
+            the outputs' scale on the built-in handshakes and the Bandai gestures, and whose
             generated gestures grow rougher with the fit's length (jerk 1.37x real after
-            1,000 iterations, 2.50x after 3,000); with 1e-3 they stay at 0.90x and 0.83x, the
-            walks are unchanged, and the run's long rollouts leave the training latents
-            (docs/model.md, "A floor on the mapping layers' noise";
-            ``benchmarks/results/noise_floor.json``).
+            1,000 iterations, 2.50x after 3,000); with 1e-3 they stay at 0.90x and 0.83x
+            and come to rest sooner, the walks are unchanged, and the run's long rollouts
+            leave the training latents (docs/model.md, "A floor on the mapping layers'
+            noise"; ``benchmarks/results/noise_floor.json``).
         priors: prior settings.
     """
 
@@ -131,9 +132,10 @@ class HGPDM:
         object.__setattr__(self, "periodic", bool(self.periodic))
         f = self.mapping_noise_floor
         if (isinstance(f, bool) or not isinstance(f, numbers.Real)
-                or not (math.isfinite(f) and f >= 0)):
-            raise BayesmotionError(f"mapping_noise_floor must be a finite number >= 0 (a "
-                                   f"noise variance in the layers' output units), got {f!r}")
+                or not (math.isfinite(f) and 0 <= f <= 1)):
+            raise BayesmotionError(f"mapping_noise_floor must be a number in [0, 1] (a noise "
+                                   f"variance in the layers' output units, the standardised "
+                                   f"poses and the latents), got {f!r}")
         object.__setattr__(self, "mapping_noise_floor", float(f))
         if self.dynamics_linear not in DYNAMICS_LINEAR:
             raise BayesmotionError(f"dynamics_linear must be one of {DYNAMICS_LINEAR}, got "
