@@ -61,11 +61,11 @@ ITERATIONS = (1000, 3000)
 LONG_GROUPS = ("run", "gesture")
 QUICK_ITERATIONS = (60, 120)
 
+
 def bandai_cell(name: str, contents: tuple, floor: float, iterations: int, root: str,
                 quick: bool) -> dict:
     """One group's fit and generated clips at one floor and iteration count."""
     import bayesmotion  # noqa: F401  (float64 on)
-    from bayesmotion.baselines import LogisticRegression
     from bayesmotion.features import clip_features
 
     cfg = replace(synthesis.QUICK if quick else synthesis.Settings(), max_iter=iterations,
@@ -73,17 +73,8 @@ def bandai_cell(name: str, contents: tuple, floor: float, iterations: int, root:
     data = synthesis.load_clips(Path(root), cfg)
     features = np.stack([clip_features(t.actors[0]) for t in data])
     labels = [t.labels["emotion"] for t in data]
-    judges = synthesis.held_out_judges(features, labels)
-    members = np.array([i for i, t in enumerate(data) if t.labels["content"] in contents])
-    t0 = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        g = synthesis.group_run(name, data, contents,
-                                {t.name: judges[i] for i, t in enumerate(data)},
-                                LogisticRegression().fit(features, labels), cfg)
-    g["natural_rate"] = synthesis.natural_rate(judges, features, labels, members)
-    g["targets_met"] = synthesis.targets_met(g)
-    g["seconds"] = time.perf_counter() - t0
+    g = synthesis.judged_group(name, data, contents, features, labels,
+                               synthesis.held_out_judges(features, labels), cfg)
     return {"group": name, "floor": floor, "iterations": iterations, **g}
 
 

@@ -437,6 +437,23 @@ def group_run(name: str, data: MotionDataset, contents: tuple, judges: dict,
     }
 
 
+def judged_group(name: str, data: MotionDataset, contents: tuple, features: np.ndarray,
+                 labels: list[str], judges: list, cfg: Settings) -> dict:
+    """:func:`group_run` of one group with the judges of every clip (``judges[i]`` never saw
+    clip i; the judge of the long rollouts and transitions is trained on every clip), the
+    judges' natural rate on the group's real clips, the targets met and the seconds."""
+    members = np.array([i for i, t in enumerate(data) if t.labels["content"] in contents])
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        g = group_run(name, data, contents, {t.name: judges[i] for i, t in enumerate(data)},
+                      LogisticRegression().fit(features, labels), cfg)
+    g["natural_rate"] = natural_rate(judges, features, labels, members)
+    g["targets_met"] = targets_met(g)
+    g["seconds"] = time.perf_counter() - t0
+    return g
+
+
 def targets_met(g: dict) -> dict:
     nat, syn = g["natural_rate"]["rate"], g["synthesized_rate"]
     n = g["naturalness"]
@@ -478,17 +495,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
     judges = held_out_judges(features, labels)
     groups = {}
     for name, cs in cfg.groups.items():
-        members = np.array([i for i, t in enumerate(data) if t.labels["content"] in cs])
-        t_group = time.perf_counter()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            g = group_run(name, data, tuple(cs),
-                          {t.name: judges[i] for i, t in enumerate(data)},
-                          LogisticRegression().fit(features, labels), cfg)
-        g["natural_rate"] = natural_rate(judges, features, labels, members)
-        g["targets_met"] = targets_met(g)
-        g["seconds"] = time.perf_counter() - t_group
-        groups[name] = g
+        groups[name] = g = judged_group(name, data, tuple(cs), features, labels, judges, cfg)
         print(f"[{NAME}] {name}: {g['seconds']:.0f} s", file=sys.stderr, flush=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

@@ -20,6 +20,10 @@ Iu            (M, Q_I)            identity                  none: variational pa
 Du            (o, M', Q_I)        identity                  none: variational parameters
 ============  ==================  ========================  =====================================
 
+With ``HGPDM(mapping_noise_floor=v)`` the noise entry (index 2) of gamma and beta is
+``1 / (exp(-l) + v)`` instead of ``exp(l)`` (:func:`bayesmotion.model.logpost.constrained`); the
+prior stays on ``l``, the free part.
+
 ``Xu``, ``Iu`` and ``Du`` exist only in the sparse model (``HGPDM(inducing=M)``): the inducing
 inputs of the bottom layer (per actor), of the interaction layer and of the dynamics layer (its
 o lags; M' = min(M, number of dynamics outputs)). They are parameters of the variational bound,
