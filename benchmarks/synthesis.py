@@ -100,6 +100,7 @@ from bayesmotion.evaluation.naturalness import (  # noqa: E402
 from bayesmotion.features import body_frame_pose, clip_features  # noqa: E402
 from bayesmotion.gp.kernels import sqdist  # noqa: E402
 from bayesmotion.model.generate import Transition  # noqa: E402
+from bayesmotion.model.predict import noise_variances as predictor_noise_variances  # noqa: E402
 from bayesmotion.model.spec import HGPDM  # noqa: E402
 
 NAME = "synthesis"
@@ -138,9 +139,8 @@ QUICK = Settings(groups={"walks": ("walk", "walk-back")}, max_iter=150, n_sample
 def noise_variances(model) -> dict:
     """Each layer's noise variance (its floor included) of a fitted model, in its outputs'
     units (standardised poses; X; I)."""
-    h = model.hyperparameters
-    return {layer: float(1.0 / h[k][i]) for k, i, layer in
-            (("gamma", 2, "bottom"), ("beta", 2, "interaction"), ("alpha", -1, "dynamics"))}
+    v = predictor_noise_variances(model.predictor())
+    return {"bottom": float(v["Y"]), "interaction": float(v["X"]), "dynamics": float(v["I"])}
 
 
 def joint_speed(angles: np.ndarray) -> np.ndarray:
