@@ -57,24 +57,17 @@ def model_path(max_iter: int) -> Path:
 
 def demo_model(max_iter: int, cache: Path | None = None):
     """The demo's MAP fit; with ``cache`` (a file, :func:`model_path`), read from it or written
-    to it, so the chain keyed on its parameters can be resumed (the fit is not
-    bit-reproducible). An unreadable file is refitted and replaced."""
-    from bayesmotion import HGPDM, load, load_handshakes
-    from bayesmotion.app.demo import _split
-    from bayesmotion.errors import ModelFileError
+    to it (``_common.cached_fit``), so the chain keyed on its parameters can be resumed."""
+    from _common import cached_fit
 
-    path = cache
-    if path is not None and path.exists():
-        try:
-            return load(path)
-        except ModelFileError as e:
-            warnings.warn(f"refitting the demo model: {e}", stacklevel=2)
-    train, _ = _split(load_handshakes(seed=0, fps=10.0))
-    model = HGPDM().fit(train, max_iter=max_iter, seed=0, progress=False)
-    if path is not None:
-        path.parent.mkdir(exist_ok=True)
-        model.save(path)  # atomic: a stopped run leaves no half-written file
-    return model
+    from bayesmotion import HGPDM, load_handshakes
+    from bayesmotion.app.demo import _split
+
+    def fit():
+        train, _ = _split(load_handshakes(seed=0, fps=10.0))
+        return HGPDM().fit(train, max_iter=max_iter, seed=0, progress=False)
+
+    return cached_fit(cache, fit, "the demo model")
 
 
 # part of the cache key, so a chain run with other default moves or coordinates is not resumed:
@@ -89,8 +82,10 @@ SAMPLER_VERSION = ("DE move (in the style shear's coordinates, the rotated style
                    "adaptation and refitted at steps 250, 500 and 1000 to every state since it)")
 
 
-def _key(model) -> str:
-    h = hashlib.sha1(SAMPLER_VERSION.encode())
+def _key(model, extra: str = "") -> str:
+    """A hash of :data:`SAMPLER_VERSION` (then ``extra``) and the fitted parameters: the name of
+    a chain file that is resumed only by the same sampler on the same fit."""
+    h = hashlib.sha1((SAMPLER_VERSION + extra).encode())
     for k in sorted(model.params):
         h.update(k.encode())
         h.update(np.ascontiguousarray(model.params[k], dtype=np.float64).tobytes())

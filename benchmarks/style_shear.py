@@ -86,7 +86,10 @@ def chain_stats(chain: np.ndarray, names: list[str], target=None) -> dict:
 VARIANTS = ("previous", "canonical_de", "default")
 
 
-def sample(model, steps: int, seed: int, variant: str) -> dict:
+def sample(model, steps: int, seed: int, variant: str, path: str | None = None) -> dict:
+    """``sample_posterior``'s defaults under ``variant`` (one of :data:`VARIANTS`) for
+    ``steps`` steps; with ``path``, the chain is kept in that emcee file and a run stopped
+    early resumes from it (the seconds per step then count this call's steps only)."""
     import emcee
 
     from bayesmotion.inference import emcee_runner, proposals
@@ -104,20 +107,23 @@ def sample(model, steps: int, seed: int, variant: str) -> dict:
         emcee_runner.CANONICAL_INDEPENDENCE = False
     try:
         with tempfile.TemporaryDirectory() as tmp:
-            path = str(Path(tmp) / "chain.h5")
+            file = path or str(Path(tmp) / "chain.h5")
             t0 = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                post = sample_posterior(model, n_steps=steps, seed=seed, backend=path,
+                post = sample_posterior(model, n_steps=steps, seed=seed, backend=file,
                                         progress=False)
             seconds = time.perf_counter() - t0
-            chain = emcee.backends.HDFBackend(path, read_only=True, name="mcmc").get_chain()
+            chain = emcee.backends.HDFBackend(file, read_only=True, name="mcmc").get_chain()
     finally:
         shear_mod.StyleShear.for_target = found
         proposals.CanonicalStyles = canonical
         emcee_runner.CANONICAL_INDEPENDENCE = independence
     return {"seed": seed, "steps": steps, "seconds": seconds,
-            "seconds_per_step": post.info["pace"]["seconds_per_step"],
+            # the steps' own time, without the Laplace start and the proposals' set-up
+            "sampling_seconds": post.info.get("seconds"),
+            # None when the file already held every step (no step was timed)
+            "seconds_per_step": (post.info.get("pace") or {}).get("seconds_per_step"),
             "independence_acceptance": post.info.get("independence_acceptance"),
             **chain_stats(chain, post.target.names, post.target)}
 
