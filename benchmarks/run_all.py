@@ -68,6 +68,7 @@ BENCHMARKS = [
     "style_shear",
     "independence_refit",
     "walker_batching",
+    "builtin_mixing",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 
