@@ -21,6 +21,7 @@ PHRASES = re.compile("|".join((
 
 def product_files():
     yield ROOT / "README.md"
+    yield ROOT / "DEVELOPERS.md"
     yield from sorted((ROOT / "docs").rglob("*.md"))
     yield from sorted((ROOT / "src").rglob("*.py"))
     yield from sorted((ROOT / "benchmarks").glob("*.py"))
