@@ -19,11 +19,14 @@ R-hat and integrated autocorrelation times, over the sampled coordinates and ove
 likelihood identifies (hyperparameters and the style vectors' Gram entries). The target is
 4 times the ``previous`` sampler's min bulk ESS per step.
 
-A step costs about 5 s here (the bottom layer's N = 816 Cholesky factors for each of 54
-walkers, twice per step), so the chains are kept in ``benchmarks/.cache`` under a hash of the
-fitted parameters, the variant and ``posterior_convergence.SAMPLER_VERSION``: a run stopped by
-the suite's timeout resumes from the files. The fit is cached beside them (it is not
-bit-reproducible, ``bayesmotion.gp.blas``).
+A step costs 7-8 s on this 2-core CPU (every walker's density twice per step, each with the
+N = 816 factorisations; ``["samplers"][v]["seconds_per_step"]``), so the two chains take about
+100 minutes from scratch, more than ``run_all``'s 90-minute limit per benchmark. They are kept
+in ``benchmarks/.cache`` under a hash of the fitted parameters, the variant, the chain's length
+and ``posterior_convergence.SAMPLER_VERSION``, and a second run resumes them. The fit is cached
+beside them (it is not bit-reproducible, ``bayesmotion.gp.blas``). On a GPU, where a step
+takes a fraction of a second, ``--steps``, ``--variants`` and ``--out`` run longer chains
+(DEVELOPERS.md).
 
 Current result (``results/builtin_mixing.json``): see ``["headline"]`` and ``docs/results.md``.
 """
