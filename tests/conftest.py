@@ -20,6 +20,17 @@ from bayesmotion.inference.diagnostics import import_arviz  # noqa: E402
 
 import_arviz()
 
+
+def pytest_runtest_teardown(item, nextitem):
+    """Between test files, drop JAX's compiled programs once the worker's memory mappings pass a
+    quarter of the kernel's limit (``bayesmotion._config.release_compiled_programs``). A worker
+    runs half the suite in one process; without this its mappings grew past 32,000 by half-way
+    through, and at the limit (65,530) XLA's next compilation fails and takes the worker down."""
+    if nextitem is None or nextitem.path != item.path:
+        from bayesmotion._config import release_compiled_programs
+
+        release_compiled_programs(fraction=0.25)
+
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CMU_DIR = SHARED / "cmu-handshake"
 BANDAI_DIR = SHARED / "bandai-emotion"

@@ -65,3 +65,25 @@ def test_leave_one_out_checks_between_folds(monkeypatch, tiny_model):
     ev.leave_one_out(ds, tiny_model, refit_iter=2, n_steps=20, baselines=False,
                      calibrate=False, infer_kwargs={"max_iter": 20})
     assert len(calls) == len(ds)
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::bayesmotion.inference.posterior.ChainTooShortWarning")
+def test_fits_samplers_and_inference_check_before_they_compile(monkeypatch, tiny_model):
+    """A notebook or program that fits, samples and infers in a loop keeps its maps bounded too:
+    each of the three entry points checks before it compiles anything."""
+    import bayesmotion as bm
+    import bayesmotion.emotion.infer as infer
+    import bayesmotion.inference.sample as sample
+    import bayesmotion.model.fit as fit
+    from tests.conftest import make_tiny_dataset
+
+    calls = []
+    for module in (fit, sample, infer):
+        monkeypatch.setattr(module, "release_compiled_programs",
+                            lambda m=module.__name__: calls.append(m) or False)
+    ds = make_tiny_dataset()
+    bm.HGPDM().fit(ds, max_iter=2, progress=False)
+    bm.sample_posterior(tiny_model, n_steps=4, n_walkers=40, progress=False)
+    bm.infer_emotion(tiny_model, ds.trials[0], n_steps=4, max_iter=2)
+    assert calls == [fit.__name__, sample.__name__, infer.__name__]

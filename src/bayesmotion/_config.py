@@ -47,7 +47,9 @@ Compiled programs: XLA's CPU backend maps memory for every program it compiles, 
 compiles for each new shape can reach the kernel's limit on a process's mappings
 (``vm.max_map_count``), where LLVM fails with "Cannot allocate memory" however much memory is
 free. :func:`release_compiled_programs` drops JAX's compiled programs past half that limit;
-``leave_one_out`` calls it before each fold and ``infer_many``'s workers before each clip.
+``fit``, ``sample_posterior`` and ``infer_emotion`` call it before they compile, ``leave_one_out``
+before each fold and ``infer_many``'s workers before each clip, so a notebook or program that
+runs them in a loop stays below the limit.
 """
 
 import os

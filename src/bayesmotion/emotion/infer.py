@@ -45,6 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 
+from bayesmotion._config import release_compiled_programs
 from bayesmotion.emotion.clip import clip_poses, clip_poses_and_sides
 from bayesmotion.emotion.density import (
     expanded_log_density,
@@ -269,6 +270,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
         EmotionPosterior.
     """
     check_infer_args(seed, n_walkers, n_steps, n_draws, couple, styles, prior)
+    release_compiled_programs()  # clips of new lengths compile anew: keep the maps bounded
     fitted = model.model if isinstance(model, Posterior) else model
     check_infer_memory(clip, fitted.fps, fitted.predictor_rows, fitted.n_actors + 2,
                        n_walkers, n_steps)

@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 from bayesmotion import validate
+from bayesmotion._config import release_compiled_programs
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.inference.chainfile import check_chain_file
 from bayesmotion.inference.emcee_runner import planned_adapt, run_emcee, run_factorised
@@ -111,6 +112,7 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
     if method not in ("emcee", "nuts"):
         raise BayesmotionError(f"method must be 'emcee' or 'nuts', got {method!r}")
     _check_numbers(n_walkers, n_steps, burn, thin, seed, n_chains, ball, gamma_every)
+    release_compiled_programs()  # each model compiles its density anew: keep the maps bounded
     held = {} if backend is None else check_chain_file(backend)
     if burn is not None and (burn < 0 or (method == "emcee" and burn >= n_steps)):
         # emcee discards burn of its n_steps; NUTS warms up for burn steps before n_steps draws

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bayesmotion._config import release_compiled_programs
 from bayesmotion.data.motion import MotionDataset
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.gp.densities import cell_ids
@@ -67,6 +68,7 @@ def fit_hgpdm(spec: HGPDM, dataset: MotionDataset, *, optimize_style: bool | tup
     Returns:
         FittedHGPDM with the MAP parameters and convergence diagnostics in ``.diagnostics``.
     """
+    release_compiled_programs()  # each fit compiles anew for its shapes: keep the maps bounded
     latents = init if isinstance(init, str) else "pca"
     if latents not in LATENT_INITS:
         raise BayesmotionError(f"init must be a parameter dict or one of {LATENT_INITS}, got "
