@@ -24,8 +24,8 @@ import_arviz()
 def pytest_runtest_teardown(item, nextitem):
     """Between test files, drop JAX's compiled programs once the worker's memory mappings pass a
     quarter of the kernel's limit (``bayesmotion._config.release_compiled_programs``). A worker
-    runs half the suite in one process; without this its mappings grew past 32,000 by half-way
-    through, and at the limit (65,530) XLA's next compilation fails and takes the worker down."""
+    runs half the suite in one process and compiles enough programs to near the limit (65,530),
+    where XLA's next compilation fails and takes the worker down."""
     if nextitem is None or nextitem.path != item.path:
         from bayesmotion._config import release_compiled_programs
 
