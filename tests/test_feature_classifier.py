@@ -7,6 +7,7 @@ from scipy.special import expit
 
 import bayesmotion as bm
 from bayesmotion.baselines.classifier import (
+    GroupCentred,
     LogisticRegression,
     NearestNeighbour,
     accuracy,
@@ -120,3 +121,50 @@ def test_mean_pose_of_a_static_figure():
     motion = bm.Motion(sk, np.tile([7.0, 1.0, -3.0], (4, 1)), 30.0)
     jm = JointMap(**{k: k for k in names})
     np.testing.assert_allclose(mean_pose_features(motion, jm), (pose / 4.0).ravel(), atol=1e-12)
+
+
+def grouped_blobs(rng, groups=6, per=4, F=4, offset=20.0, effect=2.0):
+    """Every group holds every class once per repeat; each group is shifted by a large
+    random offset, each class by a small fixed effect common to all groups."""
+    classes = np.array(["a", "b", "c", "d"])
+    effects = effect * rng.normal(size=(len(classes), F))
+    offsets = offset * rng.normal(size=(groups, F))
+    g = np.repeat(np.arange(groups), len(classes) * per)
+    y = np.tile(np.arange(len(classes)), groups * per)
+    X = offsets[g] + effects[y] + 0.3 * rng.normal(size=(len(y), F))
+    return X, classes[y], np.array([f"g{i}" for i in g])
+
+
+def test_group_centred_is_the_classifier_on_centred_features():
+    rng = np.random.default_rng(5)
+    X, y, g = grouped_blobs(rng)
+    rel = GroupCentred().fit(X, y, g)
+    means = np.stack([X[g == k].mean(0) for k in rel.groups])
+    np.testing.assert_allclose(rel.means, means, rtol=1e-12)
+    centred = X - means[[rel.groups.index(k) for k in g]]
+    plain = LogisticRegression().fit(centred, y)
+    np.testing.assert_allclose(rel.predict_proba(X, g), plain.predict_proba(centred), rtol=1e-9)
+    assert rel.classes == plain.classes
+    with pytest.raises(bm.BayesmotionError, match=r"groups \['g9'\] are not among"):
+        rel.predict(X[:1], ["g9"])
+    with pytest.raises(bm.BayesmotionError, match="one group per row"):
+        rel.predict(X[:2], ["g0"])
+    with pytest.raises(bm.BayesmotionError, match="one group per row"):
+        GroupCentred().fit(X, y, g[:-1])
+    with pytest.raises(bm.BayesmotionError, match="not fitted"):
+        GroupCentred().predict(X[:1], ["g0"])
+
+
+def test_group_centred_finds_a_class_effect_that_group_offsets_hide():
+    """Leave one row out: with group offsets ten times the class effect, the raw features tell
+    the groups apart and the classes poorly; relative to its group the effect is plain."""
+    rng = np.random.default_rng(11)
+    X, y, g = grouped_blobs(rng, per=1)
+    n = len(y)
+    rel, raw = [], []
+    for i in range(n):
+        tr = np.arange(n) != i
+        rel.append(GroupCentred().fit(X[tr], y[tr], g[tr]).predict(X[i:i + 1], g[i:i + 1])[0])
+        raw.append(LogisticRegression().fit(X[tr], y[tr]).predict(X[i:i + 1])[0])
+    assert accuracy(rel, y) >= 0.9
+    assert accuracy(raw, y) <= 0.6

@@ -19,6 +19,7 @@ import numpy as np
 
 from bayesmotion._config import release_compiled_programs
 from bayesmotion.baselines.classifier import (
+    GroupCentred,
     LogisticRegression,
     NearestNeighbour,
     mean_pose_features,
@@ -191,20 +192,50 @@ def score_labels(result: dict, with_evidence: bool | None = None) -> dict:
     return out
 
 
-def _baselines(dataset: MotionDataset, factor: str) -> tuple[dict, np.ndarray]:
+# the affective-feature classifier on features relative to each trial's content
+BY_CONTENT = "affective_features_by_content"
+
+
+def _content_groups(dataset: MotionDataset, factor: str) -> np.ndarray | None:
+    """Every trial's "content" label when the trials carry one and every content has trials
+    of at least two levels of ``factor`` (so each fold still sees the held-out trial's
+    content); else None."""
+    if factor == "content":
+        return None
+    groups = [t.labels.get("content") for t in dataset]
+    if any(not isinstance(g, str) for g in groups) or len(set(groups)) < 2:
+        return None
+    y = dataset.labels(factor)
+    for g in set(groups):
+        if len({v for v, h in zip(y, groups, strict=True) if h == g}) < 2:
+            return None
+    return np.array(groups)
+
+
+def _baselines(dataset: MotionDataset, factor: str) -> tuple[dict, dict]:
     y = np.array(dataset.labels(factor))
     feats = trial_features(dataset)
     keys = trial_features(dataset, keyframe_features)
     poses = trial_features(dataset, mean_pose_features)
     levels = list(dataset.levels[factor])
     out = {"affective_features": [], "relative_strength": [], "mean_pose_nn": []}
-    probs = np.zeros((len(dataset), len(levels)))  # the logistic regression's, in level order
+    probs = {"affective_features": np.zeros((len(dataset), len(levels)))}  # in level order
+    groups = _content_groups(dataset, factor)
+    if groups is not None:
+        out[BY_CONTENT] = []
+        probs[BY_CONTENT] = np.zeros((len(dataset), len(levels)))
     for i in range(len(dataset)):
         tr = np.arange(len(dataset)) != i
         clf = LogisticRegression().fit(feats[tr], y[tr])
         out["affective_features"].append(clf.predict(feats[i:i + 1])[0])
         # a level missing from the fold's training trials gets probability 0
-        probs[i, [levels.index(c) for c in clf.classes]] = clf.predict_proba(feats[i:i + 1])[0]
+        probs["affective_features"][i, [levels.index(c) for c in clf.classes]] = \
+            clf.predict_proba(feats[i:i + 1])[0]
+        if groups is not None:
+            rel = GroupCentred().fit(feats[tr], y[tr], groups[tr])
+            out[BY_CONTENT].append(rel.predict(feats[i:i + 1], groups[i:i + 1])[0])
+            probs[BY_CONTENT][i, [levels.index(c) for c in rel.classes]] = \
+                rel.predict_proba(feats[i:i + 1], groups[i:i + 1])[0]
         out["relative_strength"].append(
             StrengthClassifier().fit(keys[tr], y[tr]).predict(keys[i:i + 1])[0])
         out["mean_pose_nn"].append(NearestNeighbour().fit(poses[tr], y[tr]).predict(
@@ -226,7 +257,11 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         n_steps: emcee steps of each inference.
         q: credible level whose coverage is reported.
         baselines: also run the affective-feature classifier, Ho et al.'s relative-strength
-            ranking and a mean-pose nearest neighbour on the same folds.
+            ranking and a mean-pose nearest neighbour on the same folds, and, when the trials
+            carry a "content" label with each content in at least two emotions, the
+            affective-feature classifier on features relative to each trial's content
+            (``affective_features_by_content``,
+            :class:`~bayesmotion.baselines.classifier.GroupCentred`).
         fit_kwargs: further options of every fit (e.g. ``optimize_style=("content",)``).
         calibrate: True: calibrate the label probabilities and the coordinates' regions on
             held-out trials, each trial's calibration cross-fitted from the others alone;
@@ -256,7 +291,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         Taubert layout); baseline accuracies; seconds. ``label_calibration``: ECE, reliability
         bins, label-set coverage, confident errors and log score of the label probabilities
         (:func:`bayesmotion.evaluation.calibration.label_calibration`), and
-        ``baseline_label_calibration`` the same for the affective-feature classifier.
+        ``baseline_label_calibration`` the same for the affective-feature classifiers.
         Four coverages of the true label's coordinates (a vertex of the simplex) at level ``q``:
         ``coverage``, by the ellipsoidal credible region
         (:meth:`EmotionPosterior.region_contains`); ``hpd_coverage``, by the highest-density
@@ -370,7 +405,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         # the one baseline that answers with probabilities; Ho et al.'s ranking and the
         # nearest neighbour give labels only
         out["baseline_label_calibration"] = {
-            "affective_features": label_calibration(b_probs, truth_idx, q)}
+            k: label_calibration(p, truth_idx, q) for k, p in b_probs.items()}
     out["seconds"] = time.perf_counter() - t0
     return out
 
