@@ -185,6 +185,17 @@ def _headlines(res: dict, foreign: dict | None, n_clips: int, all_contents: bool
             f"its probabilities: ECE {feat['ece']:.2f}, 90% label sets cover "
             f"{100 * feat['label_set_coverage']:.0f}%, wrong with P >= 0.99 in "
             f"{100 * feat['confident_wrong']:.0f}%"),
+    ]
+    by = res["baseline_label_calibration"].get("affective_features_by_content")
+    if by is not None:
+        rows.append(headline(
+            "  affective-feature classifier relative to each clip's content, same folds",
+            100 * res["baselines"]["affective_features_by_content"], "%", "", None,
+            f"features minus the mean of the fold's training clips of the same content "
+            f"(GroupCentred); its probabilities: ECE {by['ece']:.2f}, 90% label sets cover "
+            f"{100 * by['label_set_coverage']:.0f}%, wrong with P >= 0.99 in "
+            f"{100 * by['confident_wrong']:.0f}%"))
+    rows += [
         headline("  relative-strength ranking (Ho et al.), same folds",
                  100 * res["baselines"]["relative_strength"], "%", "", None,
                  "labels only (no probabilities)"),
@@ -204,19 +215,22 @@ def _headlines(res: dict, foreign: dict | None, n_clips: int, all_contents: bool
 
 
 def result_name(all_contents: bool = False, start_jitter: float = 0.0,
-                level_starts: int = 1) -> str:
+                level_starts: int = 1, pose_reference: str | None = None) -> str:
     """The result file's name for these options."""
     return (NAME + ("_all" if all_contents else "")
+            + (f"_{pose_reference}" if pose_reference else "")
             + (f"_starts{level_starts}" if level_starts > 1
                else "_jittered" if start_jitter else ""))
 
 
 def run(quick: bool, root: str | Path | None = None, pose_space: str | None = None,
-        all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1) -> dict:
+        all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1,
+        pose_reference: str | None = None) -> dict:
     import bayesmotion  # noqa: F401  (float64 on)
     from bayesmotion.data.motion import MotionDataset
     from bayesmotion.datasets.bandai import load_bandai
     from bayesmotion.evaluation.evaluate import format_confusion, leave_one_out
+    from bayesmotion.model.data import encode_trial
     from bayesmotion.model.spec import HGPDM
 
     cfg = dict(ALL if all_contents else QUICK if quick else FULL)
@@ -227,9 +241,10 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
         cfg["pose_space"] = pose_space
     cfg["start_jitter"] = float(start_jitter)
     cfg["level_starts"] = int(level_starts)
+    cfg["pose_reference"] = pose_reference
     cfg["rest_frames"] = cfg["pose_space"] == "angles"  # joint angles only (see module doc)
     root = Path(root) if root is not None else DATA_ROOT
-    name = result_name(all_contents, start_jitter, level_starts)
+    name = result_name(all_contents, start_jitter, level_starts, pose_reference)
     base = {"name": name, "mode": "quick" if quick else "full", "settings": dict(cfg)}
     if not bandai_present(root):
         return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
@@ -240,11 +255,12 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
                           {"emotion": data.levels["emotion"]}, name=f"Bandai {what}")
     spec = HGPDM(latent_dim=6, interaction_dim=3, interaction_factors=("emotion",),
                  dynamics_factors=("emotion",), rest_frames=cfg["rest_frames"],
-                 canonical_side=cfg["canonical_side"], pose_space=cfg["pose_space"])
+                 canonical_side=cfg["canonical_side"], pose_space=cfg["pose_space"],
+                 pose_reference=cfg["pose_reference"])
     t_fit = time.perf_counter()
     full = spec.fit(clips, max_iter=cfg["max_iter"], progress=False)
     t_fit = time.perf_counter() - t_fit
-    mirrored = [full.codecs[0].encode(t.actors[0]).mirrored for t in clips]
+    mirrored = [encode_trial(full.codecs, t, spec.root_mode)[0].mirrored for t in clips]
     res = leave_one_out(clips, full, refit_iter=cfg["refit_iter"], n_steps=cfg["n_steps"],
                         calibrate=cfg["calibrate"],
                         infer_kwargs={"emotion_starts": cfg["emotion_starts"],
@@ -263,7 +279,8 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
             "seconds_total": total, "headline": rows}
 
 
-def rescore(all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1) -> int:
+def rescore(all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1,
+            pose_reference: str | None = None) -> int:
     """Summarise a stored result's labels again from its per-clip rows and rewrite it; the
     folds, timings and machine stay those of the run that produced them (``rescored_utc``
     says when the summaries were recomputed)."""
@@ -272,7 +289,7 @@ def rescore(all_contents: bool = False, start_jitter: float = 0.0, level_starts:
 
     from bayesmotion.evaluation.evaluate import score_labels
 
-    name = result_name(all_contents, start_jitter, level_starts)
+    name = result_name(all_contents, start_jitter, level_starts, pose_reference)
     path = RESULTS / f"{name}.json"
     stored = json.loads(path.read_text())
     res = stored["result"]
@@ -304,6 +321,10 @@ def main(argv=None) -> int:
                     help="project each level from its nearest-frame start and K - 1 copies "
                          "jittered by --start-jitter (infer_emotion's level_starts); writes "
                          "results/bandai_inference[_all]_startsK.json")
+    ap.add_argument("--pose-reference", default=None, metavar="LABEL",
+                    help="take the pose features relative to each clip's LABEL (e.g. content: "
+                         "HGPDM(pose_reference=...)); writes results/bandai_inference[_all]_"
+                         "LABEL.json")
     ap.add_argument("--rescore", action="store_true",
                     help="no refit: summarise the stored result's per-clip answers again "
                          "(bayesmotion.evaluation.evaluate.score_labels) and rewrite its "
@@ -314,8 +335,9 @@ def main(argv=None) -> int:
     check_projection_starts("vertices", a.level_starts, a.start_jitter, "--level-starts",
                             "--start-jitter")
     if a.rescore:
-        return rescore(a.all_contents, a.start_jitter, a.level_starts)
-    res = run(a.quick, a.root, a.pose_space, a.all_contents, a.start_jitter, a.level_starts)
+        return rescore(a.all_contents, a.start_jitter, a.level_starts, a.pose_reference)
+    res = run(a.quick, a.root, a.pose_space, a.all_contents, a.start_jitter, a.level_starts,
+              a.pose_reference)
     write_json(RESULTS / f"{res['name']}.json", {**res, "status": "ok",
                                                  "machine": machine_info()})
     print(res.get("skipped") or res["confusion_table"])

@@ -46,10 +46,11 @@ def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
         np.mean([t["true"] in t["label_set"] for t in r["trials"]]))
     assert r["interval_coverage"] == pytest.approx(
         np.mean([t["intervals_cover"] for t in r["trials"]]))
-    assert set(r["baselines"]) == {"affective_features", "relative_strength", "mean_pose_nn"}
+    assert set(r["baselines"]) == {"affective_features", "affective_features_by_content",
+                                   "relative_strength", "mean_pose_nn"}
     assert [h["metric"].strip()[:6] for h in saved["headline"]] == \
-        ["H-GPDM", "label ", "label ", "coordi", "affect", "relati", "mean-p", "second",
-         "other "]
+        ["H-GPDM", "label ", "label ", "coordi", "affect", "affect", "relati", "mean-p",
+         "second", "other "]
     fo = saved["foreign_actions"]  # quick: the four clips of one other action
     assert fo["n"] == 4 and len(fo["clips"]) == 4
     assert fo["flagged"] == pytest.approx(np.mean([c["flagged"] for c in fo["clips"]]))
@@ -87,4 +88,4 @@ def test_quick_all_contents_run_pools_the_contents(bandai_root):
     assert {c.split("_")[1] for c in res["clips"]} == {"walk-left", "bow"}
     assert len(r["trials"]) == 8 and "calibrated" not in r  # the labels' calibration only
     assert [h["metric"].strip()[:6] for h in res["headline"]] == \
-        ["H-GPDM", "label ", "label ", "affect", "relati", "mean-p", "second"]
+        ["H-GPDM", "label ", "label ", "affect", "affect", "relati", "mean-p", "second"]
