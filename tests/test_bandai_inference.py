@@ -89,3 +89,30 @@ def test_quick_all_contents_run_pools_the_contents(bandai_root):
     assert len(r["trials"]) == 8 and "calibrated" not in r  # the labels' calibration only
     assert [h["metric"].strip()[:6] for h in res["headline"]] == \
         ["H-GPDM", "label ", "label ", "affect", "affect", "relati", "mean-p", "second"]
+
+
+def test_baselines_alone_on_both_sets_of_folds(bandai_root):
+    from bayesmotion.baselines.classifier import GroupCentred, trial_features
+
+    res = bandai_inference.baselines_only(bandai_root)
+    assert res["name"] == "bandai_baselines"
+    assert len(res["walks"]["clips"]) == 16 and len(res["all"]["clips"]) == 40
+    clips = bandai_inference._clips(bandai_inference.FULL, bandai_root, "walks")
+    X = trial_features(clips)
+    y = np.array(clips.labels("emotion"))
+    g = np.array([t.labels["content"] for t in clips])
+    manual = [GroupCentred().fit(np.delete(X, i, 0), np.delete(y, i), np.delete(g, i))
+              .predict(X[i:i + 1], g[i:i + 1])[0] for i in range(len(y))]
+    walks = res["walks"]
+    assert walks["predictions"]["affective_features_by_content"] == manual
+    for part in (walks, res["all"]):
+        truth = [c.split("_")[2] for c in part["clips"]]  # dataset-1_<content>_<style>_001
+        truth = [{"normal": "neutral"}.get(s, s) for s in truth]
+        for k, pred in part["predictions"].items():
+            assert part["accuracy"][k] == pytest.approx(
+                np.mean([p == t for p, t in zip(pred, truth, strict=True)]))
+        assert part["label_calibration"]["affective_features_by_content"]["accuracy"] == \
+            pytest.approx(part["accuracy"]["affective_features_by_content"])
+    assert [h["value"] for h in res["headline"]] == pytest.approx(
+        [100 * walks["accuracy"]["affective_features_by_content"],
+         100 * res["all"]["accuracy"]["affective_features_by_content"]])

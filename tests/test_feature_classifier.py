@@ -153,6 +153,14 @@ def test_group_centred_is_the_classifier_on_centred_features():
         GroupCentred().fit(X, y, g[:-1])
     with pytest.raises(bm.BayesmotionError, match="not fitted"):
         GroupCentred().predict(X[:1], ["g0"])
+    with pytest.raises(bm.BayesmotionError, match="fitted on 4 features"):
+        rel.predict(X[:1, :1], ["g0"])
+    with pytest.raises(bm.BayesmotionError, match="None found"):
+        GroupCentred().fit(X, y, [None] * len(y))
+    # groups are names: integer groups and their text are one group
+    ints = GroupCentred().fit(X, y, [int(k[1:]) for k in g])
+    np.testing.assert_allclose(ints.predict_proba(X[:3], ["0", 0, "0"]),
+                               rel.predict_proba(X[:3], g[:3]), rtol=1e-12)
 
 
 def test_group_centred_finds_a_class_effect_that_group_offsets_hide():

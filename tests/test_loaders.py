@@ -40,6 +40,14 @@ def test_rows_sharing_a_trial_form_one_trial_ordered_by_actor(tmp_path):
         np.testing.assert_allclose(ds[0].actors[a].values, trial.actors[a].values, atol=1e-4)
 
 
+def test_a_content_column_labels_each_trials_action(tmp_path):
+    _folder(tmp_path, [{"file": "a.bvh", "emotion": "happy", "content": "walk", "trial": ""},
+                       {"file": "b.bvh", "emotion": "sad", "content": "", "trial": ""}])
+    ds = load_data(str(tmp_path))
+    assert [t.labels for t in ds] == [{"emotion": "happy", "content": "walk"},
+                                      {"emotion": "sad"}]
+
+
 def test_mixed_frame_rates_are_refused_unless_resampled(tmp_path):
     _folder(tmp_path, [{"file": "a.bvh", "emotion": "happy", "trial": ""},
                        {"file": "b.bvh", "emotion": "sad", "trial": ""}], rates={"b.bvh": 5.0})
@@ -55,6 +63,9 @@ def test_mixed_frame_rates_are_refused_unless_resampled(tmp_path):
       {"file": "b.bvh", "emotion": "happy", "trial": "t", "actor": "0"}], "once each"),
     ([{"file": "a.bvh", "emotion": "happy", "trial": "t", "actor": "0"},
       {"file": "b.bvh", "emotion": "sad", "trial": "t", "actor": "1"}], "disagree on emotion"),
+    ([{"file": "a.bvh", "emotion": "happy", "content": "walk", "trial": "t", "actor": "0"},
+      {"file": "b.bvh", "emotion": "happy", "content": "bow", "trial": "t", "actor": "1"}],
+     "disagree on content"),
 ])
 def test_bad_label_rows_are_named(tmp_path, rows, match):
     _folder(tmp_path, rows)

@@ -123,11 +123,6 @@ def _parser() -> argparse.ArgumentParser:
                    help="model joint angles (default; the model generates motion) or the 18 "
                         "affective pose features of every frame (infers emotion across "
                         "actions; cannot generate)")
-    f.add_argument("--pose-reference", default=None, metavar="LABEL",
-                   help="with --pose-space affective: take each clip's features relative to "
-                        "the mean of the training clips sharing its LABEL (e.g. content, for "
-                        "emotions across actions; HGPDM(pose_reference=...)); inference then "
-                        "needs each clip's level (infer --reference)")
     f.add_argument("--inducing", type=int, default=None, metavar="M",
                    help="the sparse model with M inducing points per layer (O(N M^2) instead "
                         "of O(N^3); for corpora beyond a few thousand frames)")
@@ -214,9 +209,6 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--max-iter", type=int, default=PROJECTION_ITER, metavar="N",
                    help=f"L-BFGS iterations per projection at most (default "
                         f"{PROJECTION_ITER}); a projection stops earlier where it converges")
-    i.add_argument("--reference", default=None, metavar="LEVEL",
-                   help="the clips' level of the model's pose reference (a model fitted with "
-                        "--pose-reference content: their action, e.g. walk)")
     i.add_argument("--workers", type=int, default=2,
                    help="with a folder: processes of the local Dask cluster (default 2)")
     i.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -340,7 +332,7 @@ def _cmd_fit(a):
         f"fitting {N} frames")
     m = HGPDM(latent_dim=a.latent_dim, interaction_dim=a.interaction_dim,
               rest_frames=a.rest_frames, canonical_side=a.canonical_side,
-              pose_space=a.pose_space, pose_reference=a.pose_reference, inducing=a.inducing,
+              pose_space=a.pose_space, inducing=a.inducing,
               mapping_noise_floor=a.mapping_noise_floor).fit(
         ds, max_iter=a.max_iter)
     m.save(a.out)
@@ -429,7 +421,7 @@ def _cmd_infer(a):
                            seed=a.seed, likelihood_power=a.likelihood_power,
                            emotion_starts=a.emotion_starts, level_starts=a.level_starts,
                            start_jitter=a.start_jitter, staged_start=a.staged_start,
-                           max_iter=a.max_iter, reference=a.reference)
+                           max_iter=a.max_iter)
     for w in caught:  # the flag is part of the answer: one line on stderr, and in the JSON
         if issubclass(w.category, OutOfDistributionWarning):
             print(f"warning: {w.message}", file=sys.stderr)
@@ -467,7 +459,7 @@ def _infer_folder(a):
                       seed=a.seed, couple=a.couple, likelihood_power=a.likelihood_power,
                       emotion_starts=a.emotion_starts, level_starts=a.level_starts,
                       start_jitter=a.start_jitter, staged_start=a.staged_start,
-                      max_iter=a.max_iter, reference=a.reference)
+                      max_iter=a.max_iter)
     errors = [r for r in rows if r["error"]]
     flagged = sum(str(r["out_of_distribution"]) == "True" for r in rows)
     print(f"wrote {table}: {len(rows)} clips, {len(errors)} failed, {flagged} out of "

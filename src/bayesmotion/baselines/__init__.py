@@ -9,6 +9,7 @@
 
 from bayesmotion.baselines.amaya import apply_amaya, fit_amaya
 from bayesmotion.baselines.classifier import (
+    GroupCentred,
     LogisticRegression,
     NearestNeighbour,
     accuracy,
@@ -38,7 +39,7 @@ from bayesmotion.baselines.unuma import (
 )
 
 __all__ = [
-    "EmotionComponent", "FourierModel", "LogisticRegression", "NearestNeighbour",
+    "EmotionComponent", "FourierModel", "GroupCentred", "LogisticRegression", "NearestNeighbour",
     "RBFInterpolant", "StrengthClassifier", "StrengthModel", "Verb", "accuracy", "apply_amaya",
     "blend", "detect_period", "emotion_component", "emotion_coordinates", "fit_amaya", "fit_rbf",
     "fit_strength", "fit_strength_features", "fit_verb", "fourier_eval", "fourier_fit",

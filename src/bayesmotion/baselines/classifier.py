@@ -14,7 +14,8 @@ immutable, and ``fit`` returns a new fitted classifier (``clf = LogisticRegressi
   walk and of a bow alike is then one direction across actions, where raw features mostly tell
   the actions apart.
 
-:func:`leave_one_out_predictions` runs either on a :class:`~bayesmotion.MotionDataset`.
+:func:`leave_one_out_predictions` runs the first two on a :class:`~bayesmotion.MotionDataset`;
+``bayesmotion.evaluation.evaluate.leave_one_out`` runs :class:`GroupCentred` on its folds.
 """
 
 from __future__ import annotations
@@ -128,6 +129,16 @@ class NearestNeighbour(_Standardised):
         return (votes + 1e-3 * nearest) / (self.k + 1e-3)
 
 
+def _group_names(groups, n: int) -> list[str]:
+    """One group name per row, as text (so 1 and "1" are one group); None is refused."""
+    groups = list(np.atleast_1d(np.asarray(groups, dtype=object)))
+    if len(groups) != n:
+        raise BayesmotionError(f"expected one group per row: {n} rows, {len(groups)} groups")
+    if any(g is None for g in groups):
+        raise BayesmotionError("every row needs a group (None found)")
+    return [str(g) for g in groups]
+
+
 @dataclass(frozen=True, eq=False)
 class GroupCentred:
     """A classifier on features relative to each clip's group (module docstring).
@@ -139,7 +150,8 @@ class GroupCentred:
     Attributes:
         classifier: the unfitted classifier (default :class:`LogisticRegression`); once
             fitted, the fitted one.
-        groups: the training groups, in order; ``means``: (G, F) their mean features.
+        groups: the training groups' names (as text: 1 and "1" are one group), in order;
+            ``means``: (G, F) their mean features.
     """
 
     classifier: _Standardised | None = None
@@ -154,25 +166,21 @@ class GroupCentred:
         if self.groups is None:
             raise BayesmotionError("GroupCentred is not fitted; call .fit(X, y, groups) first")
         X = np.atleast_2d(np.asarray(X, dtype=np.float64))
-        groups = np.atleast_1d(np.asarray(groups))
-        if groups.shape != (X.shape[0],):
-            raise BayesmotionError(f"expected one group per row: {X.shape[0]} rows, "
-                                   f"{groups.shape} groups")
-        unknown = sorted({str(g) for g in groups} - {str(g) for g in self.groups})
+        if X.ndim != 2 or X.shape[1] != self.means.shape[1]:
+            raise BayesmotionError(f"fitted on {self.means.shape[1]} features, got an array of "
+                                   f"shape {X.shape}")
+        names = _group_names(groups, X.shape[0])
+        unknown = sorted(set(names) - set(self.groups))
         if unknown:
             raise BayesmotionError(f"groups {unknown} are not among the training groups "
                                    f"{list(self.groups)}: no reference mean for them")
-        idx = [[str(g) for g in self.groups].index(str(g)) for g in groups]
-        return X - self.means[idx]
+        return X - self.means[[self.groups.index(g) for g in names]]
 
     def fit(self, X, y, groups) -> GroupCentred:
         X, y = _check_xy(X, y)
-        groups = np.asarray(groups)
-        if groups.shape != y.shape:
-            raise BayesmotionError(f"expected one group per row: {y.shape[0]} rows, "
-                                   f"{groups.shape} groups")
-        levels = tuple(np.unique(groups).tolist())
-        means = np.stack([X[groups == g].mean(axis=0) for g in levels])
+        names = np.array(_group_names(groups, X.shape[0]), dtype=object)
+        levels = tuple(sorted(set(names)))
+        means = np.stack([X[names == g].mean(axis=0) for g in levels])
         fitted = replace(self, groups=levels, means=means)
         clf = self.classifier if self.classifier is not None else LogisticRegression()
         return replace(fitted, classifier=clf.fit(fitted._centred(X, groups), y))

@@ -17,8 +17,9 @@ def load_data(spec: str, fps: float | None = None) -> MotionDataset:
     """Load a dataset from a specification string.
 
     * ``builtin:handshakes`` -- the built-in emotional handshakes (``load_handshakes``);
-    * a folder with ``labels.csv`` (columns ``file, emotion`` and optionally ``couple, trial,
-      actor``): rows with the same ``trial`` value form one trial, their actors ordered by the
+    * a folder with ``labels.csv`` (columns ``file, emotion`` and optionally ``couple, content,
+      trial, actor``; ``content`` names the action): rows with the same ``trial`` value form
+      one trial, their actors ordered by the
       integer ``actor`` column (0, 1); a row without a ``trial`` value is a one-actor trial;
       ``fps`` resamples every file (needed when the files' frame rates differ);
     * a Bandai Namco dataset-1 root (files ``dataset-1_*.bvh``).
@@ -45,7 +46,7 @@ def _from_labels(root: Path, fps):
         rows = list(csv.DictReader(f))
     if not rows or "file" not in rows[0] or "emotion" not in rows[0]:
         raise BayesmotionError(f"{root / 'labels.csv'}: needs columns file, emotion[, couple, "
-                               f"trial, actor]")
+                               f"content, trial, actor]")
     groups: dict[str, list] = {}
     for i, r in enumerate(rows):
         groups.setdefault(r.get("trial") or f"row{i}", []).append(r)
@@ -60,7 +61,7 @@ def _from_labels(root: Path, fps):
         if sorted(actors) != list(range(len(rs))):
             raise BayesmotionError(f"{root / 'labels.csv'}: trial {name!r} has actors {actors}; "
                                    f"expected 0{', 1' if len(rs) > 1 else ''} once each")
-        for col in ("emotion", "couple"):
+        for col in ("emotion", "couple", "content"):
             if len({r.get(col) or "" for r in rs}) > 1:
                 raise BayesmotionError(f"{root / 'labels.csv'}: the rows of trial {name!r} "
                                        f"disagree on {col}")
@@ -69,7 +70,8 @@ def _from_labels(root: Path, fps):
         if fps:
             motions = tuple(m.resample(fps) for m in motions)
         labels = {"emotion": rs[0]["emotion"]}
-        if rs[0].get("couple"):
-            labels["couple"] = rs[0]["couple"]
+        for col in ("couple", "content"):
+            if rs[0].get(col):
+                labels[col] = rs[0][col]
         trials.append(Trial(motions, labels, name))
     return MotionDataset(trials, name=str(root))

@@ -12,7 +12,6 @@ from bayesmotion.data.bvh import read_bvh
 from bayesmotion.data.motion import Motion, Trial
 from bayesmotion.data.skeleton import Skeleton
 from bayesmotion.errors import BayesmotionError, SkeletonMismatchError
-from bayesmotion.model.data import encode_trial
 
 
 def _as_motion(x) -> Motion:
@@ -71,15 +70,12 @@ def clip_to_trial(model, clip) -> Trial:
     return trial
 
 
-def clip_poses(model, clip, reference: str | None = None) -> list[np.ndarray]:
-    """Per actor, (T, D_a) normalised poses of a clip (arrays pass through after checks);
-    ``reference``: the clip's level of the model's pose reference
-    (``HGPDM(pose_reference=...)``), read from a Trial's labels when None."""
-    return clip_poses_and_sides(model, clip, reference)[0]
+def clip_poses(model, clip) -> list[np.ndarray]:
+    """Per actor, (T, D_a) normalised poses of a clip (arrays pass through after checks)."""
+    return clip_poses_and_sides(model, clip)[0]
 
 
-def clip_poses_and_sides(model, clip, reference: str | None = None
-                         ) -> tuple[list[np.ndarray], list[bool]]:
+def clip_poses_and_sides(model, clip) -> tuple[list[np.ndarray], list[bool]]:
     """:func:`clip_poses` and, per actor, whether the codec mirrored the clip to its canonical
     side (``HGPDM(canonical_side=True)``; always False for arrays, already in model space)."""
     if isinstance(clip, np.ndarray):
@@ -97,5 +93,8 @@ def clip_poses_and_sides(model, clip, reference: str | None = None
     if isinstance(clip, str | os.PathLike) and not Path(clip).exists():
         raise BayesmotionError(f"{clip}: no such file")
     trial = clip_to_trial(model, clip)
-    enc = encode_trial(model.codecs, trial, model.codecs[0].root_mode, reference)
+    enc = []
+    for a, codec in enumerate(model.codecs):
+        partner = trial.actors[1 - a] if codec.root_mode == "partner" else None
+        enc.append(codec.encode(trial.actors[a], partner))
     return [e.Y for e in enc], [bool(e.mirrored) for e in enc]

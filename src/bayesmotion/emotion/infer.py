@@ -179,8 +179,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                   emotion_starts: str = "vertices", level_starts: int = 1,
                   start_jitter: float = START_JITTER,
                   effective_frames: float | None = None,
-                  staged_start: bool = False,
-                  reference: str | None = None) -> EmotionPosterior:
+                  staged_start: bool = False) -> EmotionPosterior:
     """Posterior over the emotion coordinates of an observed clip.
 
     Args:
@@ -267,15 +266,9 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             (:func:`bayesmotion.emotion.projection.project_levels`), instead of at the nearest
             training frames' latents (the default). ``benchmarks/projection_starts.py``
             compares the two on the same folds (``single_start``).
-        reference: the clip's level of the model's pose reference
-            (``HGPDM(pose_reference="content")``: its action, e.g. ``"walk"``); read from a
-            Trial's labels when None. Needed exactly when the model has a pose reference; a
-            level the training clips lack is refused.
     Returns:
         EmotionPosterior.
     """
-    if reference is not None and not isinstance(reference, str):
-        raise BayesmotionError(f"reference must be None or a level name, got {reference!r}")
     check_infer_args(seed, n_walkers, n_steps, n_draws, couple, styles, prior)
     release_compiled_programs()  # clips of new lengths compile anew: keep the maps bounded
     fitted = model.model if isinstance(model, Posterior) else model
@@ -302,13 +295,12 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                             seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
                             latent_uncertainty and k == 0, likelihood_power, emotion_starts,
                             n_eff, int(level_starts), float(start_jitter), method,
-                            staged_start, reference)
+                            staged_start)
                  for k, i in enumerate(idx)]
         return pool_posteriors(parts)
     return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
                       n_steps, max_iter, latent_uncertainty, likelihood_power, emotion_starts,
-                      n_eff, int(level_starts), float(start_jitter), method, staged_start,
-                      reference)
+                      n_eff, int(level_starts), float(start_jitter), method, staged_start)
 
 
 def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
@@ -328,7 +320,7 @@ def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
                latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices",
                n_eff=(float("inf"), False), level_starts=1, start_jitter=START_JITTER,
-               method="ensemble", staged_start=False, reference=None):
+               method="ensemble", staged_start=False):
     import emcee
 
     t0 = time.perf_counter()
@@ -339,7 +331,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
         stages[name] = now - last[0]
         last[0] = now
 
-    Ys, mirrored = clip_poses_and_sides(model, clip, reference)
+    Ys, mirrored = clip_poses_and_sides(model, clip)
     if frames is not None:
         ok = isinstance(frames, slice)
         if not ok and not isinstance(frames, int | np.integer | str):
@@ -592,7 +584,7 @@ def infer_online(model, clip, *, start: int | None = None, step: int = 5, **kwar
     at the model's frame rate (the clip is resampled to it first)."""
     if int(step) != step or step < 1:
         raise BayesmotionError(f"step must be a positive number of frames, got {step!r}")
-    n = clip_poses(model, clip, kwargs.get("reference"))[0].shape[0]
+    n = clip_poses(model, clip)[0].shape[0]
     k = start or (model.spec.order + 3)
     while True:
         k = min(k, n)

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from bayesmotion.codecs.affective import fit_codec, reference_level
+from bayesmotion.codecs.affective import fit_codec
 from bayesmotion.data.motion import MotionDataset
 from bayesmotion.errors import BayesmotionError
 
@@ -40,14 +40,6 @@ def fit_codecs(spec: HGPDM, dataset: MotionDataset) -> tuple:
         raise BayesmotionError(f"canonical_side mirrors one-actor clips; this dataset has "
                                f"{dataset.n_actors} actors per trial, and mirroring each alone "
                                f"would break their interaction")
-    ref = spec.pose_reference
-    labels = None
-    if ref is not None:
-        labels = [t.labels.get(ref) for t in dataset]
-        missing = [t.name for t, v in zip(dataset, labels, strict=True) if not isinstance(v, str)]
-        if missing:
-            raise BayesmotionError(f"pose_reference={ref!r}: every trial needs a {ref!r} label; "
-                                   f"{len(missing)} lack one (first {missing[0]!r})")
     codecs = []
     for a in range(dataset.n_actors):
         motions = [t.actors[a] for t in dataset]
@@ -55,20 +47,16 @@ def fit_codecs(spec: HGPDM, dataset: MotionDataset) -> tuple:
         if spec.root_mode == "partner" and dataset.n_actors != 2:
             raise BayesmotionError("root_mode='partner' needs two-actor trials")
         codecs.append(fit_codec(spec.pose_space, motions, partners, spec.root_mode,
-                                spec.scaling, spec.rest_frames, spec.canonical_side,
-                                ref, labels))
+                                spec.scaling, spec.rest_frames, spec.canonical_side))
     return tuple(codecs)
 
 
-def encode_trial(codecs, trial, root_mode, reference: str | None = None):
-    """Per actor the Encoded poses of one trial; ``reference``: its level of the codecs' pose
-    reference, read from its labels when None."""
+def encode_trial(codecs, trial, root_mode):
+    """Per actor (Y (T, D_a), anchor) of one trial."""
     out = []
     for a, codec in enumerate(codecs):
         partner = trial.actors[1 - a] if root_mode == "partner" else None
-        level = reference_level(codec, trial.labels, reference)
-        extra = {} if getattr(codec, "reference", None) is None else {"reference_level": level}
-        out.append(codec.encode(trial.actors[a], partner, **extra))
+        out.append(codec.encode(trial.actors[a], partner))
     return out
 
 

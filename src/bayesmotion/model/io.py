@@ -78,9 +78,6 @@ def _build(meta: dict, arrays, path: Path) -> FittedHGPDM:
             spec.root_mode == "partner" and len(codecs) != 2):
         raise _bad(path, f"root mode {spec.root_mode!r} does not match the codecs' "
                          f"{[c.root_mode for c in codecs]}")
-    if any(getattr(c, "reference", None) != spec.pose_reference for c in codecs):
-        raise _bad(path, f"the specification's pose_reference={spec.pose_reference!r} does not "
-                         f"match the codecs' {[getattr(c, 'reference', None) for c in codecs]}")
     steps = [(getattr(c, "frames", None) is not None, c.side is not None) for c in codecs]
     if any(s != (spec.rest_frames, spec.canonical_side) for s in steps):
         raise _bad(path, f"the specification's rest_frames={spec.rest_frames} and "

@@ -48,15 +48,6 @@ class HGPDM:
             and size, for inferring emotion across actions; such a model cannot generate
             motion; ``rest_frames`` and a ``scaling`` other than the default are refused:
             the features are standardised one by one).
-        pose_reference: None (default), or with ``pose_space="affective"`` a label of every
-            trial (e.g. ``"content"``) whose levels the pose features are taken relative to:
-            each clip's features minus the mean features of the training clips of its level,
-            pooled over their emotions (:mod:`bayesmotion.codecs.affective`). A model pooling
-            several actions then models how each clip departs from its action's typical
-            posture, the part an emotion shares across actions; inference needs the clip's
-            level, and an action the training clips lack is refused. On all 40 shared Bandai
-            clips (10 actions) this is the setting of
-            ``benchmarks/results/bandai_inference_all_content.json``.
         dynamics_linear: the linear part of the dynamics' mean. "stable" (default): an
             explicit autoregression i_t = sum_l a_l i_{t-l} + f(i_{t-1}, .., i_{t-o}) with the
             coefficients a parameterised through partial autocorrelations so that only
@@ -113,7 +104,6 @@ class HGPDM:
     rest_frames: bool = False
     canonical_side: bool = False
     pose_space: str = "angles"
-    pose_reference: str | None = None
     dynamics_linear: str = "stable"
     dynamics_weight: float = 1.0
     inducing: int | None = None
@@ -122,7 +112,7 @@ class HGPDM:
     priors: Priors = field(default_factory=Priors)
 
     def __post_init__(self):
-        check_pose_space(self.pose_space, self.rest_frames, self.scaling, self.pose_reference)
+        check_pose_space(self.pose_space, self.rest_frames, self.scaling)
         if self.order not in (1, 2):
             raise BayesmotionError(f"order must be 1 or 2, got {self.order}")
         if self.latent_dim < 1 or self.interaction_dim < 1:
@@ -185,7 +175,7 @@ class HGPDM:
         d = {k: getattr(self, k) for k in ("latent_dim", "interaction_dim", "order",
                                              "root_mode", "scaling", "rest_frames",
                                              "canonical_side", "pose_space",
-                                             "pose_reference", "dynamics_linear", "dynamics_weight",
+                                             "dynamics_linear", "dynamics_weight",
                                              "inducing", "periodic",
                                              "mapping_noise_floor")}
         d["interaction_factors"] = list(self.interaction_factors or ())
@@ -204,7 +194,6 @@ class HGPDM:
         d.setdefault("inducing", None)
         d.setdefault("periodic", False)
         d.setdefault("mapping_noise_floor", 0.0)
-        d.setdefault("pose_reference", None)
         return cls(**d)
 
     def fit(self, dataset: MotionDataset, **kwargs) -> FittedHGPDM:
