@@ -273,7 +273,8 @@ def baselines_only(root: str | Path | None = None) -> dict:
         rows.append(headline(
             f"affective-feature classifier relative to each clip's content, {what}, "
             f"leave-one-clip-out", 100 * acc[best], "%", "", None,
-            f"a baseline (the H-GPDM's target is >= {100 * target:.0f}%); raw features {100 * acc['affective_features']:.1f}%, relative strength "
+            f"a baseline (the H-GPDM's target is >= {100 * target:.0f}%); raw features "
+            f"{100 * acc['affective_features']:.1f}%, relative strength "
             f"{100 * acc['relative_strength']:.1f}%; ECE {cal[best]['ece']:.2f}, 90% label sets "
             f"cover {100 * cal[best]['label_set_coverage']:.0f}% (mean size "
             f"{cal[best]['label_set_mean_size']:.2f}), wrong with P >= 0.99 in "
