@@ -233,9 +233,9 @@ def _baselines(dataset: MotionDataset, factor: str) -> tuple[dict, dict]:
             clf.predict_proba(feats[i:i + 1])[0]
         if groups is not None:
             rel = GroupCentred().fit(feats[tr], y[tr], groups[tr])
-            out[BY_CONTENT].append(rel.predict(feats[i:i + 1], groups[i:i + 1])[0])
-            probs[BY_CONTENT][i, [levels.index(c) for c in rel.classes]] = \
-                rel.predict_proba(feats[i:i + 1], groups[i:i + 1])[0]
+            p = rel.predict_proba(feats[i:i + 1], groups[i:i + 1])[0]
+            out[BY_CONTENT].append(rel.classes[int(np.argmax(p))])
+            probs[BY_CONTENT][i, [levels.index(c) for c in rel.classes]] = p
         out["relative_strength"].append(
             StrengthClassifier().fit(keys[tr], y[tr]).predict(keys[i:i + 1])[0])
         out["mean_pose_nn"].append(NearestNeighbour().fit(poses[tr], y[tr]).predict(
