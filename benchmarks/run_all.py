@@ -234,7 +234,10 @@ def render_docs(page: str, results: dict[str, dict]) -> str:
 # GPU's part with this CPU's (run by hand: the suite has no GPU), and this CPU's part alone
 # (``device_timings.py``, with the newer infer_emotion variants)
 EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all", "bandai_inference_jittered",
-                                      "bandai_inference_starts3", "bandai_baselines"),
+                                      "bandai_inference_starts3", "bandai_baselines",
+                                      "bandai_inference_sparse100",
+                                      "bandai_inference_sparse100_iter400",
+                                      "bandai_inference_all_sparse100_iter400"),
                  "infer_speed": ("device_timings", "device_timings_cpu")}
 
 

@@ -91,6 +91,33 @@ def test_quick_all_contents_run_pools_the_contents(bandai_root):
         ["H-GPDM", "label ", "label ", "affect", "affect", "relati", "mean-p", "second"]
 
 
+@pytest.mark.slow
+def test_quick_sparse_run_fits_the_sparse_model(bandai_root):
+    res = bandai_inference.run(True, root=bandai_root, all_contents=True, inducing=6)
+    assert res["name"] == "bandai_inference_all_sparse6"
+    assert res["settings"]["inducing"] == 6 and res["spec"]["inducing"] == 6
+    assert len(res["result"]["trials"]) == 8
+    exact = bandai_inference.run(True, root=bandai_root, all_contents=True)
+    assert exact["spec"]["inducing"] is None and exact["settings"]["inducing"] is None
+    # the same folds, a different model: the answers' probabilities differ
+    P = [t["probabilities"] for t in res["result"]["trials"]]
+    Q = [t["probabilities"] for t in exact["result"]["trials"]]
+    assert not np.allclose(P, Q)
+
+
+def test_result_names_say_the_options():
+    assert bandai_inference.result_name() == "bandai_inference"
+    assert bandai_inference.result_name(True, 0.02, 3, 100) == \
+        "bandai_inference_all_sparse100_starts3"
+    assert bandai_inference.result_name(inducing=100) == "bandai_inference_sparse100"
+
+
+def test_inducing_below_two_is_refused(capsys):
+    with pytest.raises(SystemExit):
+        bandai_inference.main(["--inducing", "1"])
+    assert "--inducing must be at least 2" in capsys.readouterr().err
+
+
 def test_baselines_alone_on_both_sets_of_folds(bandai_root):
     from bayesmotion.baselines.classifier import GroupCentred, trial_features
 
