@@ -1,6 +1,8 @@
 """Shared fixtures: paths to the real motion-capture sets beside the checkout."""
 
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -12,6 +14,18 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 # tests, which call it in-process and in subprocesses, keep it off unless a test turns it on in
 # a folder of its own, so they neither read nor fill the user's cache.
 os.environ["BAYESMOTION_COMPILE_CACHE"] = "off"
+# One private compilation cache for the whole test run instead: JAX reads this variable when it
+# is imported, in the pytest process, in both xdist workers (which inherit it from the first)
+# and in every subprocess and notebook kernel a test starts, so a program compiled by one of
+# them (the same code and shapes: the fixtures' models, the CLI's and the notebooks' calls) is
+# read back by the others instead of being compiled again, and again after
+# release_compiled_programs (below) drops it from a worker's memory. The folder is made with
+# mkdtemp (mode 0700: whoever can write to a compilation cache can make its readers run code)
+# and removed when the run ends (pytest_sessionfinish). A compiled program is keyed by its
+# code, shapes, flags and JAX version, so the answers are those of a compilation.
+_OWN_CACHE = "JAX_COMPILATION_CACHE_DIR" not in os.environ
+if _OWN_CACHE:
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="bayesmotion-tests-jax-")
 
 # The test modules import arviz; two workers importing it for the first time on one day race on
 # its daily stamp file. import_arviz survives that race, so each worker imports arviz through it
@@ -19,6 +33,12 @@ os.environ["BAYESMOTION_COMPILE_CACHE"] = "off"
 from bayesmotion.inference.diagnostics import import_arviz  # noqa: E402
 
 import_arviz()
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """The pytest process (not an xdist worker) removes the run's compilation cache."""
+    if _OWN_CACHE and not hasattr(session.config, "workerinput"):
+        shutil.rmtree(os.environ["JAX_COMPILATION_CACHE_DIR"], ignore_errors=True)
 
 
 def pytest_runtest_teardown(item, nextitem):
@@ -96,7 +116,7 @@ def client():
     distributed = pytest.importorskip("dask.distributed",
                                       reason="dask.distributed not installed")
     cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                       dashboard_address=None)
+                                       dashboard_address=":0")
     c = distributed.Client(cluster)
     yield c
     c.close()
