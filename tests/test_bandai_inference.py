@@ -80,9 +80,15 @@ def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
                                                      for t in r["trials"]]))
 
 
+@pytest.fixture(scope="module")
+def all_contents_quick(bandai_root):
+    """The quick all-contents run of the exact model, shared by the two tests that read it."""
+    return bandai_inference.run(True, root=bandai_root, all_contents=True)
+
+
 @pytest.mark.slow
-def test_quick_all_contents_run_pools_the_contents(bandai_root):
-    res = bandai_inference.run(True, root=bandai_root, all_contents=True)
+def test_quick_all_contents_run_pools_the_contents(all_contents_quick):
+    res = all_contents_quick
     r = res["result"]
     assert res["name"] == "bandai_inference_all"
     assert {c.split("_")[1] for c in res["clips"]} == {"walk-left", "bow"}
@@ -92,12 +98,12 @@ def test_quick_all_contents_run_pools_the_contents(bandai_root):
 
 
 @pytest.mark.slow
-def test_quick_sparse_run_fits_the_sparse_model(bandai_root):
+def test_quick_sparse_run_fits_the_sparse_model(bandai_root, all_contents_quick):
     res = bandai_inference.run(True, root=bandai_root, all_contents=True, inducing=6)
     assert res["name"] == "bandai_inference_all_sparse6"
     assert res["settings"]["inducing"] == 6 and res["spec"]["inducing"] == 6
     assert len(res["result"]["trials"]) == 8
-    exact = bandai_inference.run(True, root=bandai_root, all_contents=True)
+    exact = all_contents_quick
     assert exact["spec"]["inducing"] is None and exact["settings"]["inducing"] is None
     # the same folds, a different model: the answers' probabilities differ
     P = [t["probabilities"] for t in res["result"]["trials"]]
