@@ -65,6 +65,7 @@ BENCHMARKS = [
     "projection_budget",
     "sparse_inference",
     "compile_cache",
+    "online_padding",
     "style_shear",
     "independence_refit",
     "walker_batching",

@@ -676,6 +676,50 @@ def test_credible_regions_of_degenerate_posteriors_and_off_simplex_points():
             spread.interval(q)
 
 
+@pytest.mark.slow
+def test_prefixes_padded_to_the_whole_clip_share_one_compilation(tiny_model, tiny_data,
+                                                                 monkeypatch):
+    """pad_to: a 4-frame prefix padded as a 40-frame clip gives the unpadded answer (the padded
+    frames are masked; the projection's scaling sees more zero-curvature coordinates, so equal
+    to its tolerance, not bit for bit), and a longer prefix with the same pad_to compiles no
+    new projection program."""
+    from bayesmotion.emotion import projection
+
+    trial = tiny_data[4]
+    kw = {"couple": "c1", "n_steps": 200, "latent_uncertainty": False, "seed": 3}
+    plain = bm.infer_emotion(tiny_model, trial, frames=slice(0, 4), **kw)
+    padded = bm.infer_emotion(tiny_model, trial, frames=slice(0, 4), pad_to=40, **kw)
+    assert plain.info["padded_frames"] == 16 and padded.info["padded_frames"] == 40
+    assert plain.info["n_frames"] == padded.info["n_frames"] == 4
+    assert padded.label == plain.label
+    np.testing.assert_allclose(padded.info["level_log_evidence"],
+                               plain.info["level_log_evidence"], rtol=1e-4)
+    np.testing.assert_allclose(padded.mean, plain.mean, atol=0.02)
+    programs = projection._scaled_lbfgs._cache_size()
+    longer = bm.infer_emotion(tiny_model, trial, frames=slice(0, 7), pad_to=40, **kw)
+    assert longer.info["padded_frames"] == 40
+    assert projection._scaled_lbfgs._cache_size() == programs
+    for bad in (True, 0, 2.5, "40"):
+        with pytest.raises(bm.BayesmotionError, match="pad_to must be a positive number"):
+            bm.infer_emotion(tiny_model, trial, pad_to=bad, **kw)
+    with pytest.raises(bm.BayesmotionError, match=r"pad_to \(5\) must be at least the clip's 7"):
+        bm.infer_emotion(tiny_model, trial, frames=slice(0, 7), pad_to=5, **kw)
+    # the online iterator and the online harness pad every prefix as the whole clip
+    from bayesmotion.emotion import infer as infer_module
+    from bayesmotion.evaluation import evaluate
+
+    seen = []
+    spy = lambda model, clip, **k: seen.append((k.get("frames"), k.get("pad_to")))
+    monkeypatch.setattr(infer_module, "infer_emotion", spy)
+    list(bm.infer_online(tiny_model, trial, start=4, step=3))
+    assert seen == [(slice(0, 4), 9), (slice(0, 7), 9), (slice(0, 9), 9)]
+    seen.clear()
+    monkeypatch.setattr(evaluate, "infer_emotion", lambda model, clip, **k: (
+        seen.append((clip.n_frames, k["pad_to"])), plain)[1])
+    evaluate.online_sharpening(tiny_model, [trial], fractions=(0.5, 1.0))
+    assert seen == [(5, 9), (9, 9)]
+
+
 def test_online_and_frame_arguments_are_checked(tiny_model, tiny_data):
     with pytest.raises(bm.BayesmotionError, match="step"):
         next(bm.infer_online(tiny_model, tiny_data[0], step=0))

@@ -446,10 +446,13 @@ def check_projection_starts(emotion_starts, level_starts, start_jitter,
 
 
 def check_infer_memory(clip, fps: float, n_train_frames: int, n_layers: int, n_walkers: int,
-                       n_steps: int) -> None:
+                       n_steps: int, pad_to: int | None = None) -> None:
     """Refuse an inference whose :func:`infer_memory` exceeds the available memory (the clip's
-    frames from :func:`clip_frames`; unknown: not checked here)."""
+    frames from :func:`clip_frames`, or ``pad_to`` where more; unknown: not checked here)."""
     T = clip_frames(clip, fps)
+    what = f"a {T}-frame clip"
+    if pad_to is not None and int(pad_to) > (T or 0):
+        T, what = int(pad_to), f"a clip padded to {pad_to} frames"
     if T is not None:
         check_memory(infer_memory(T, n_train_frames, n_layers, n_walkers, n_steps),
-                     f"inferring the emotion of a {T}-frame clip")
+                     f"inferring the emotion of {what}")

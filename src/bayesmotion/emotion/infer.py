@@ -179,7 +179,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                   emotion_starts: str = "vertices", level_starts: int = 1,
                   start_jitter: float = START_JITTER,
                   effective_frames: float | None = None,
-                  staged_start: bool = False) -> EmotionPosterior:
+                  staged_start: bool = False, pad_to: int | None = None) -> EmotionPosterior:
     """Posterior over the emotion coordinates of an observed clip.
 
     Args:
@@ -266,14 +266,28 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             (:func:`bayesmotion.emotion.projection.project_levels`), instead of at the nearest
             training frames' latents (the default). ``benchmarks/projection_starts.py``
             compares the two on the same folds (``single_start``).
+        pad_to: pad the clip's frames as a clip of ``pad_to`` frames would be padded
+            (:func:`bayesmotion.shapes.padded_length`; at least the clip's frames after
+            ``frames``). Each padded length compiles its programs once per process (about 45 s
+            for the first inference of the built-in handshakes' demo model on this 2-core CPU),
+            so growing prefixes of one stream (``frames=slice(0, k)``) given the stream's final
+            length share one compilation, at the cost of every prefix computing over the padded
+            frames (:func:`infer_online` and
+            :func:`bayesmotion.evaluation.evaluate.online_sharpening` pad to the whole clip).
+            The padded frames are masked out of the density; the answer equals the unpadded
+            one up to the projection's optimisation tolerance. None: the clip's own length.
     Returns:
         EmotionPosterior.
     """
     check_infer_args(seed, n_walkers, n_steps, n_draws, couple, styles, prior)
     release_compiled_programs()  # clips of new lengths compile anew: keep the maps bounded
     fitted = model.model if isinstance(model, Posterior) else model
+    if pad_to is not None and (isinstance(pad_to, bool)
+                               or not isinstance(pad_to, int | np.integer) or pad_to < 1):
+        raise BayesmotionError(f"pad_to must be a positive number of frames or None, got "
+                               f"{pad_to!r}")
     check_infer_memory(clip, fitted.fps, fitted.predictor_rows, fitted.n_actors + 2,
-                       n_walkers, n_steps)
+                       n_walkers, n_steps, pad_to)
     check_projection_starts(emotion_starts, level_starts, start_jitter)
     if method not in ("ensemble", "emcee"):
         raise BayesmotionError(f"method must be 'ensemble' or 'emcee', got {method!r}")
@@ -295,12 +309,13 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                             seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
                             latent_uncertainty and k == 0, likelihood_power, emotion_starts,
                             n_eff, int(level_starts), float(start_jitter), method,
-                            staged_start)
+                            staged_start, pad_to)
                  for k, i in enumerate(idx)]
         return pool_posteriors(parts)
     return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
                       n_steps, max_iter, latent_uncertainty, likelihood_power, emotion_starts,
-                      n_eff, int(level_starts), float(start_jitter), method, staged_start)
+                      n_eff, int(level_starts), float(start_jitter), method, staged_start,
+                      pad_to)
 
 
 def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
@@ -320,7 +335,7 @@ def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
                latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices",
                n_eff=(float("inf"), False), level_starts=1, start_jitter=START_JITTER,
-               method="ensemble", staged_start=False):
+               method="ensemble", staged_start=False, pad_to=None):
     import emcee
 
     t0 = time.perf_counter()
@@ -346,7 +361,9 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     o = model.spec.order
     if T <= o:
         raise BayesmotionError(f"the clip needs more than {o} frames, got {T}")
-    B = padded_length(T)
+    if pad_to is not None and pad_to < T:
+        raise BayesmotionError(f"pad_to ({pad_to}) must be at least the clip's {T} frames")
+    B = padded_length(T if pad_to is None else int(pad_to))
     mask = jnp.asarray(np.arange(B) < T)
     Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
     fixed, conc, inferred = _style_setup(model, given, prior)
@@ -440,7 +457,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
         styles[k[len(STYLE_PREFIX):]] = np.swapaxes(s.reshape(*u.shape[:2], n + 1), 0, 1)
         start += n
     stage("sample")
-    info = {"n_frames": T, "mirrored": mirrored,
+    info = {"n_frames": T, "padded_frames": B, "mirrored": mirrored,
             "seconds": time.perf_counter() - t0, "stage_seconds": stages,
             "tau": tau, "likelihood_power": float(likelihood_power),
             "acceptance": acceptance, "sampler": method,
@@ -581,11 +598,14 @@ def _style_mode(x0, sty) -> np.ndarray:
 def infer_online(model, clip, *, start: int | None = None, step: int = 5, **kwargs):
     """Yield an EmotionPosterior for growing prefixes of the clip (frames arriving online):
     the first ``start`` frames (default order + 3), then ``step`` more at a time, frames counted
-    at the model's frame rate (the clip is resampled to it first)."""
+    at the model's frame rate (the clip is resampled to it first). Every prefix is padded as
+    the whole clip is (``pad_to``, unless given in ``kwargs``), so the prefixes share one
+    compilation; ``kwargs`` are :func:`infer_emotion`'s."""
     if int(step) != step or step < 1:
         raise BayesmotionError(f"step must be a positive number of frames, got {step!r}")
     n = clip_poses(model, clip)[0].shape[0]
     k = start or (model.spec.order + 3)
+    kwargs.setdefault("pad_to", n)  # every prefix one compilation (infer_emotion's pad_to)
     while True:
         k = min(k, n)
         yield infer_emotion(model, clip, frames=slice(0, k), **kwargs)

@@ -47,7 +47,7 @@ from bayesmotion.evaluation.calibration import (
 )
 from bayesmotion.model.params import AR_KEY, STYLE_PREFIX
 from bayesmotion.model.spec import HGPDM
-from bayesmotion.validate import check_projection_starts
+from bayesmotion.validate import check_projection_starts, clip_frames
 
 
 def _fold_init(full, keep: list[int]) -> dict:
@@ -415,8 +415,9 @@ def online_sharpening(model, trials, fractions=(0.25, 0.5, 0.75, 1.0), seed: int
     """How the emotion posterior sharpens as a clip's frames arrive (online inference).
 
     Each trial is read from its first ``ceil(f * T)`` frames for every fraction ``f`` (at least
-    the dynamics order + 1 frames) and its emotion inferred; reported per fraction: the mean over
-    trials of the coordinates' differential entropy
+    the dynamics order + 1 frames), padded as the whole trial is (:func:`infer_emotion`'s
+    ``pad_to``, so that the prefixes share one compilation), and its emotion inferred; reported
+    per fraction: the mean over trials of the coordinates' differential entropy
     (:attr:`EmotionPosterior.coordinate_entropy`) and of the label entropy
     (:attr:`EmotionPosterior.entropy`), and the fraction of trials inferred correctly. The
     trials should be held out of ``model``'s training data.
@@ -437,11 +438,12 @@ def online_sharpening(model, trials, fractions=(0.25, 0.5, 0.75, 1.0), seed: int
     for i, t in enumerate(trials):
         given = {f: t.labels[f] for f in fitted.spec.factors if f != "emotion"}
         n = t.n_frames
+        whole = clip_frames(t, fitted.fps)  # the whole trial at the model's frame rate
         rows = []
         for f in fr:
             k = min(n, max(o + 1, int(np.ceil(f * n))))
             ep = infer_flagged(model, t.select(slice(0, k)), styles=given, seed=seed + i,
-                               latent_uncertainty=False, **infer_kwargs)
+                               latent_uncertainty=False, **{"pad_to": whole, **infer_kwargs})
             rows.append({"frames": k, "coordinate_entropy": ep.coordinate_entropy,
                          "label_entropy": ep.entropy, "correct": ep.label == t.labels["emotion"]})
         per_trial.append({"trial": t.name, "prefixes": rows})
