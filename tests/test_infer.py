@@ -681,14 +681,16 @@ def test_prefixes_padded_to_the_whole_clip_share_one_compilation(tiny_model, tin
                                                                  monkeypatch):
     """pad_to: a 4-frame prefix padded as a 40-frame clip gives the unpadded answer (the padded
     frames are masked; the projection's scaling sees more zero-curvature coordinates, so equal
-    to its tolerance, not bit for bit), and a longer prefix with the same pad_to compiles no
-    new projection program."""
+    to its tolerance, not bit for bit); the first pad_to=40 call compiles the 40-frame
+    projection, and a longer prefix with the same pad_to compiles nothing new."""
     from bayesmotion.emotion import projection
 
     trial = tiny_data[4]
     kw = {"couple": "c1", "n_steps": 200, "latent_uncertainty": False, "seed": 3}
     plain = bm.infer_emotion(tiny_model, trial, frames=slice(0, 4), **kw)
+    programs = projection._scaled_lbfgs._cache_size()
     padded = bm.infer_emotion(tiny_model, trial, frames=slice(0, 4), pad_to=40, **kw)
+    assert projection._scaled_lbfgs._cache_size() > programs
     assert plain.info["padded_frames"] == 16 and padded.info["padded_frames"] == 40
     assert plain.info["n_frames"] == padded.info["n_frames"] == 4
     assert padded.label == plain.label
@@ -718,6 +720,12 @@ def test_prefixes_padded_to_the_whole_clip_share_one_compilation(tiny_model, tin
         seen.append((clip.n_frames, k["pad_to"])), plain)[1])
     evaluate.online_sharpening(tiny_model, [trial], fractions=(0.5, 1.0))
     assert seen == [(5, 9), (9, 9)]
+    # a trial at twice the model's rate: the prefixes are cut in its own frames, pad_to counts
+    # the model's (the 17 frames at 10 fps are read as 9 at 5 fps)
+    fast = bm.load_handshakes(fps=10.0).filter(couple="c1", emotion="sad")[0]
+    seen.clear()
+    evaluate.online_sharpening(tiny_model, [fast], fractions=(0.5, 1.0))
+    assert seen == [(9, 9), (17, 9)]
 
 
 def test_online_and_frame_arguments_are_checked(tiny_model, tiny_data):

@@ -33,10 +33,12 @@ def clips(tmp_path_factory):
 
 
 def test_projection_starts_are_checked_before_any_work(tiny_model, tmp_path):
-    """Several level starts without a jitter are refused before a cluster starts or a table is
-    written."""
+    """Several level starts without a jitter, and a pad_to that is not a number of frames, are
+    refused before a cluster starts or a table is written."""
     with pytest.raises(BayesmotionError, match="level_starts > 1 needs start_jitter > 0"):
         bm.infer_many(tiny_model, [tmp_path / "absent.bvh"], tmp_path / "t.csv", level_starts=2)
+    with pytest.raises(BayesmotionError, match="pad_to must be a positive number of frames"):
+        bm.infer_many(tiny_model, [tmp_path / "absent.bvh"], tmp_path / "t.csv", pad_to=0)
     assert not (tmp_path / "t.csv").exists()
 
 

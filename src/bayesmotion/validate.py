@@ -445,6 +445,14 @@ def check_projection_starts(emotion_starts, level_starts, start_jitter,
                                f"starts are all the same point")
 
 
+def check_pad_to(pad_to) -> None:
+    """``infer_emotion``'s ``pad_to``: None or a positive number of frames."""
+    if pad_to is not None and (isinstance(pad_to, bool)
+                               or not isinstance(pad_to, int | np.integer) or pad_to < 1):
+        raise BayesmotionError(f"pad_to must be a positive number of frames or None, got "
+                               f"{pad_to!r}")
+
+
 def check_infer_memory(clip, fps: float, n_train_frames: int, n_layers: int, n_walkers: int,
                        n_steps: int, pad_to: int | None = None) -> None:
     """Refuse an inference whose :func:`infer_memory` exceeds the available memory (the clip's

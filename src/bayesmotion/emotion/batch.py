@@ -48,7 +48,7 @@ from bayesmotion.compile_cache import cache_stats, enable_compilation_cache
 from bayesmotion.emotion.projection import START_JITTER
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.model.distributed import check_workers, dask_client, model_bytes, worker_model
-from bayesmotion.validate import check_projection_starts
+from bayesmotion.validate import check_pad_to, check_projection_starts
 
 FIXED = ("clip", "files", "label", "label_set_90")
 TAIL = ("out_of_distribution", "ood_score", "in_distribution_weight", "n_frames", "seconds",
@@ -228,6 +228,7 @@ def infer_many(model, clips, out=None, *, client=None, workers: int = 2,
     check_projection_starts(infer_kwargs.get("emotion_starts", "vertices"),
                             infer_kwargs.get("level_starts", 1),
                             infer_kwargs.get("start_jitter", START_JITTER))
+    check_pad_to(infer_kwargs.get("pad_to"))
     data = model_bytes(model)
     fitted = worker_model(data)
     named = _named(clips, fitted.n_actors)

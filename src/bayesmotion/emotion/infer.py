@@ -86,7 +86,12 @@ from bayesmotion.model.generate import style_coords
 from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style, style_to_simplex
 from bayesmotion.model.predict import sparse_layers, style_vectors
 from bayesmotion.shapes import padded_length
-from bayesmotion.validate import check_infer_args, check_infer_memory, check_projection_starts
+from bayesmotion.validate import (
+    check_infer_args,
+    check_infer_memory,
+    check_pad_to,
+    check_projection_starts,
+)
 
 
 @partial(jax.jit, static_argnames=STATIC_ARGS + ("free",))
@@ -268,24 +273,23 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             compares the two on the same folds (``single_start``).
         pad_to: pad the clip's frames as a clip of ``pad_to`` frames would be padded
             (:func:`bayesmotion.shapes.padded_length`; at least the clip's frames after
-            ``frames``). Each padded length compiles its programs once per process (about 45 s
-            for the first inference of the built-in handshakes' demo model on this 2-core CPU),
-            so growing prefixes of one stream (``frames=slice(0, k)``) given the stream's final
-            length share one compilation, at the cost of every prefix computing over the padded
-            frames (:func:`infer_online` and
-            :func:`bayesmotion.evaluation.evaluate.online_sharpening` pad to the whole clip).
-            The padded frames are masked out of the density; the answer equals the unpadded
-            one up to the projection's optimisation tolerance. None: the clip's own length.
+            ``frames``; a longer clip is refused). Each padded length compiles its programs
+            once per process: on this 2-core CPU a fresh process's first inference with a
+            demo-size model took 58.6 s, the next 2.0 s
+            (``benchmarks/results/compile_cache.json``). Growing prefixes of one stream
+            (``frames=slice(0, k)``) given the stream's final length share one compilation, at
+            the cost of every prefix computing over the padded frames (:func:`infer_online`
+            and :func:`bayesmotion.evaluation.evaluate.online_sharpening` pad to the whole
+            clip). The padded frames are masked out of the density; the answer equals the
+            unpadded one up to the projection's optimisation tolerance. None: the clip's own
+            length.
     Returns:
         EmotionPosterior.
     """
     check_infer_args(seed, n_walkers, n_steps, n_draws, couple, styles, prior)
     release_compiled_programs()  # clips of new lengths compile anew: keep the maps bounded
     fitted = model.model if isinstance(model, Posterior) else model
-    if pad_to is not None and (isinstance(pad_to, bool)
-                               or not isinstance(pad_to, int | np.integer) or pad_to < 1):
-        raise BayesmotionError(f"pad_to must be a positive number of frames or None, got "
-                               f"{pad_to!r}")
+    check_pad_to(pad_to)
     check_infer_memory(clip, fitted.fps, fitted.predictor_rows, fitted.n_actors + 2,
                        n_walkers, n_steps, pad_to)
     check_projection_starts(emotion_starts, level_starts, start_jitter)

@@ -27,6 +27,7 @@ from bayesmotion.baselines.classifier import (
 )
 from bayesmotion.baselines.strength import StrengthClassifier, keyframe_features
 from bayesmotion.data.motion import MotionDataset
+from bayesmotion.emotion.clip import clip_poses
 from bayesmotion.emotion.evidence import (
     calibrate_effective_frames,
     evidence_power,
@@ -47,7 +48,7 @@ from bayesmotion.evaluation.calibration import (
 )
 from bayesmotion.model.params import AR_KEY, STYLE_PREFIX
 from bayesmotion.model.spec import HGPDM
-from bayesmotion.validate import check_projection_starts, clip_frames
+from bayesmotion.validate import check_projection_starts
 
 
 def _fold_init(full, keep: list[int]) -> dict:
@@ -438,7 +439,7 @@ def online_sharpening(model, trials, fractions=(0.25, 0.5, 0.75, 1.0), seed: int
     for i, t in enumerate(trials):
         given = {f: t.labels[f] for f in fitted.spec.factors if f != "emotion"}
         n = t.n_frames
-        whole = clip_frames(t, fitted.fps)  # the whole trial at the model's frame rate
+        whole = clip_poses(fitted, t)[0].shape[0]  # the whole trial as infer_emotion reads it
         rows = []
         for f in fr:
             k = min(n, max(o + 1, int(np.ceil(f * n))))
