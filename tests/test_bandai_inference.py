@@ -98,13 +98,16 @@ def test_quick_all_contents_run_pools_the_contents(all_contents_quick):
 
 
 @pytest.mark.slow
-def test_quick_sparse_run_fits_the_sparse_model(bandai_root, all_contents_quick):
-    res = bandai_inference.run(True, root=bandai_root, all_contents=True, inducing=6)
-    assert res["name"] == "bandai_inference_all_sparse6"
+def test_quick_sparse_relative_run_fits_that_model(bandai_root, all_contents_quick):
+    res = bandai_inference.run(True, root=bandai_root, all_contents=True, inducing=6,
+                               relative_to="content")
+    assert res["name"] == "bandai_inference_all_sparse6_relative"
     assert res["settings"]["inducing"] == 6 and res["spec"]["inducing"] == 6
+    assert res["settings"]["relative_to"] == res["spec"]["relative_to"] == "content"
     assert len(res["result"]["trials"]) == 8
     exact = all_contents_quick
     assert exact["spec"]["inducing"] is None and exact["settings"]["inducing"] is None
+    assert exact["spec"]["relative_to"] is None
     # the same folds, a different model: the answers' probabilities differ
     P = [t["probabilities"] for t in res["result"]["trials"]]
     Q = [t["probabilities"] for t in exact["result"]["trials"]]
@@ -116,6 +119,9 @@ def test_result_names_say_the_options():
     assert bandai_inference.result_name(True, 0.02, 3, 100) == \
         "bandai_inference_all_sparse100_starts3"
     assert bandai_inference.result_name(inducing=100) == "bandai_inference_sparse100"
+    assert bandai_inference.result_name(True, inducing=100, projection_iter=400,
+                                        relative_to="content") == \
+        "bandai_inference_all_sparse100_iter400_relative"
 
 
 def test_inducing_below_two_is_refused(capsys):

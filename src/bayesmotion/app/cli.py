@@ -123,6 +123,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="model joint angles (default; the model generates motion) or the 18 "
                         "affective pose features of every frame (infers emotion across "
                         "actions; cannot generate)")
+    f.add_argument("--relative-to", default=None, metavar="LABEL",
+                   help="with --pose-space affective: model every frame's features relative "
+                        "to the mean of the training trials sharing its LABEL (e.g. content), "
+                        "for corpora of several actions; new clips need that label (infer "
+                        "--group)")
     f.add_argument("--inducing", type=int, default=None, metavar="M",
                    help="the sparse model with M inducing points per layer (O(N M^2) instead "
                         "of O(N^3); for corpora beyond a few thousand frames)")
@@ -182,6 +187,9 @@ def _parser() -> argparse.ArgumentParser:
                         "<clip>_actor<a>.bvh per actor), inferred in parallel on Dask")
     i.add_argument("--json", action="store_true")
     i.add_argument("--couple", default=None)
+    i.add_argument("--group", default=None,
+                   help="for a model fitted with --relative-to: the clips' label (e.g. their "
+                        "content, walk), whose training mean their poses are read against")
     i.add_argument("--seed", type=int, default=0)
     i.add_argument("--likelihood-power", type=float, default=1.0,
                    help="eta of the tempered posterior (from 'evaluate --calibrate')")
@@ -332,7 +340,7 @@ def _cmd_fit(a):
         f"fitting {N} frames")
     m = HGPDM(latent_dim=a.latent_dim, interaction_dim=a.interaction_dim,
               rest_frames=a.rest_frames, canonical_side=a.canonical_side,
-              pose_space=a.pose_space, inducing=a.inducing,
+              pose_space=a.pose_space, relative_to=a.relative_to, inducing=a.inducing,
               mapping_noise_floor=a.mapping_noise_floor).fit(
         ds, max_iter=a.max_iter)
     m.save(a.out)
@@ -418,7 +426,8 @@ def _cmd_infer(a):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OutOfDistributionWarning)
         ep = infer_emotion(m, a.clips if len(a.clips) > 1 else a.clips[0], couple=a.couple,
-                           seed=a.seed, likelihood_power=a.likelihood_power,
+                           styles=_group_styles(m, a.group), seed=a.seed,
+                           likelihood_power=a.likelihood_power,
                            emotion_starts=a.emotion_starts, level_starts=a.level_starts,
                            start_jitter=a.start_jitter, staged_start=a.staged_start,
                            max_iter=a.max_iter)
@@ -450,13 +459,30 @@ def _cmd_infer(a):
         print(ep)
 
 
+def _group_styles(model, group) -> dict | None:
+    """``infer --group``: the clips' label of the model's ``relative_to``, as a style."""
+    rel = model.spec.relative_to
+    if group is None:
+        if rel is not None:
+            raise BayesmotionError(f"the model reads poses relative to their {rel!r} "
+                                   f"(fit --relative-to {rel}): give the clips' {rel!r} with "
+                                   f"--group, one of {list(model.codecs[0].groups)}")
+        return None
+    if rel is None:
+        raise BayesmotionError("--group is for models fitted with --relative-to; this model "
+                               "reads poses on their own")
+    return {rel: group}
+
+
 def _infer_folder(a):
     validate.integer(a.workers, "--workers", low=1)
     validate.input_file(a.model, "model")
     folder = Path(a.clips[0])
     table = validate.output_file(a.table if a.table else folder / "emotions.csv", "--table")
+    styles = _group_styles(load(a.model), a.group)
     rows = infer_many(a.model, folder, table, workers=a.workers, scheduler=a.scheduler,
-                      seed=a.seed, couple=a.couple, likelihood_power=a.likelihood_power,
+                      styles=styles, seed=a.seed, couple=a.couple,
+                      likelihood_power=a.likelihood_power,
                       emotion_starts=a.emotion_starts, level_starts=a.level_starts,
                       start_jitter=a.start_jitter, staged_start=a.staged_start,
                       max_iter=a.max_iter)

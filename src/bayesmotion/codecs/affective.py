@@ -17,6 +17,19 @@ Before the features are read, a motion goes through the same label-free steps as
 joint-angle codec (the mover's ancestors' translation folded into the mover; with a canonical
 side, motions to the actor's right mirrored, which swaps the left- and right-hand features).
 Rest frames change joint angles only, never joint positions, so they do not apply here.
+
+Relative to a group (``HGPDM(pose_space="affective", relative_to="content")``): between
+actions the features differ far more than between emotions of one action (a bow's posture is
+not a walk's), so a model that pools several actions spends its latent space on the action.
+With ``relative_to`` every frame's standardised features minus the mean over the training
+frames of the trials sharing its label (its group, e.g. its content) are modelled: how a clip
+departs from its action, as :class:`~bayesmotion.baselines.classifier.GroupCentred` does for
+the affective-feature classifier. A clip is then read relative to its group's training mean,
+so its label must be given (:func:`bayesmotion.emotion.infer.infer_emotion` takes it from the
+trial's labels or from ``styles``). A clip of a group the training trials lack has no
+reference: it is read relative to the mean over all training frames, and reported as outside
+the training data (``EmotionPosterior.info["ood"]["unknown_group"]``) with the evidence given
+no weight.
 """
 
 from __future__ import annotations
@@ -44,11 +57,19 @@ class AffectiveCodec:
         mean: (18,) per-feature mean over the training frames.
         scale: (18,) per-feature standard deviation over the training frames (1 where a
             feature is constant, to rounding).
+        relative_to: None, or the label (e.g. "content") whose groups' means are subtracted
+            (module docstring).
+        groups: the training groups' labels, in order (empty without ``relative_to``).
+        offsets: (G, 18) each group's mean standardised features over its training frames
+            (None without ``relative_to``).
     """
 
     base: PoseCodec
     mean: np.ndarray
     scale: np.ndarray
+    relative_to: str | None = None
+    groups: tuple[str, ...] = ()
+    offsets: np.ndarray | None = None
     decodes: ClassVar[bool] = False
     pose_space: ClassVar[str] = "affective"
 
@@ -78,17 +99,28 @@ class AffectiveCodec:
 
     @classmethod
     def fit(cls, motions, partners=None, root_mode: str = "velocity",
-            canonical_side: bool = False, side_threshold: float = 0.15) -> AffectiveCodec:
+            canonical_side: bool = False, side_threshold: float = 0.15,
+            relative_to: str | None = None, groups=None) -> AffectiveCodec:
         """Fit the preparation steps and the features' means and scales on training motions
-        (one actor slot; arguments as :meth:`PoseCodec.fit`)."""
+        (one actor slot; arguments as :meth:`PoseCodec.fit`); with ``relative_to``, also
+        each group's mean, ``groups`` giving every motion's label (module docstring)."""
         motions = list(motions)
         base = PoseCodec.fit(motions, partners, root_mode, "type", False, canonical_side,
                              side_threshold)
         proto = cls(base, np.zeros(len(POSE_FEATURE_NAMES)), np.ones(len(POSE_FEATURE_NAMES)))
-        F = np.concatenate([proto._features(m)[0] for m in motions])
+        Fs = [proto._features(m)[0] for m in motions]
+        F = np.concatenate(Fs)
         mean, std = F.mean(0), F.std(0)
         # a feature constant but for rounding keeps scale 1 (not noise blown up to unit sd)
-        return cls(base, mean, np.where(std > 1e-9 * (1.0 + np.abs(mean)), std, 1.0))
+        scale = np.where(std > 1e-9 * (1.0 + np.abs(mean)), std, 1.0)
+        if relative_to is None:
+            return cls(base, mean, scale)
+        labels = _group_labels(relative_to, groups, len(motions))
+        names = tuple(sorted(set(labels)))
+        offsets = np.stack([
+            np.concatenate([f for f, g in zip(Fs, labels, strict=True) if g == name]).mean(0)
+            for name in names])
+        return cls(base, mean, scale, relative_to, names, (offsets - mean) / scale)
 
     def prepare(self, motion: Motion) -> tuple[Motion, bool]:
         """The motion as the features read it (root folded, on the canonical side) and whether
@@ -108,12 +140,30 @@ class AffectiveCodec:
                 f"reference distance or area is zero: joints that coincide)")
         return F, mirrored
 
-    def encode(self, motion: Motion, partner: Motion | None = None) -> Encoded:
+    def knows(self, group) -> bool:
+        """Whether ``group`` is one of the training groups (always True without
+        ``relative_to``)."""
+        return self.relative_to is None or str(group) in self.groups
+
+    def encode(self, motion: Motion, partner: Motion | None = None,
+               group=None) -> Encoded:
         """Motion -> (Y (T, 18) standardised features, anchor (empty: nothing to decode),
         mirrored). ``partner`` is accepted for the codec interface and not read: each actor's
-        features are its own."""
+        features are its own. ``group``: the motion's ``relative_to`` label (needed when the
+        codec has one; a group the training motions lack is read relative to the mean over all
+        training frames, see :meth:`knows`)."""
         F, mirrored = self._features(motion)
-        return Encoded((F - self.mean) / self.scale, np.zeros(0), mirrored)
+        Y = (F - self.mean) / self.scale
+        if self.relative_to is not None:
+            if group is None:
+                raise BayesmotionError(
+                    f"{motion.name or 'the motion'}: this model reads poses relative to their "
+                    f"{self.relative_to!r} (HGPDM(relative_to={self.relative_to!r})), and the "
+                    f"motion has no {self.relative_to!r} label: give it in the trial's labels "
+                    f"or as styles={{{self.relative_to!r}: ...}}, one of {list(self.groups)}")
+            if self.knows(group):
+                Y = Y - self.offsets[self.groups.index(str(group))]
+        return Encoded(Y, np.zeros(0), mirrored)
 
     def decode(self, *args, **kwargs):
         raise BayesmotionError(
@@ -125,11 +175,17 @@ class AffectiveCodec:
 
     # ---------------------------------------------------------------- saving
     def to_arrays(self, prefix: str) -> dict[str, np.ndarray]:
-        return {**self.base.to_arrays(prefix), f"{prefix}feature_mean": self.mean,
-                f"{prefix}feature_scale": self.scale}
+        out = {**self.base.to_arrays(prefix), f"{prefix}feature_mean": self.mean,
+               f"{prefix}feature_scale": self.scale}
+        if self.relative_to is not None:
+            out[f"{prefix}group_offsets"] = self.offsets
+        return out
 
     def to_meta(self) -> dict:
-        return {**self.base.to_meta(), "pose_space": self.pose_space}
+        meta = {**self.base.to_meta(), "pose_space": self.pose_space}
+        if self.relative_to is not None:
+            meta.update(relative_to=self.relative_to, groups=list(self.groups))
+        return meta
 
     @classmethod
     def from_saved(cls, meta: dict, arrays, prefix: str) -> AffectiveCodec:
@@ -146,25 +202,70 @@ class AffectiveCodec:
                 and np.all(scale >= 1e-150)):
             raise ValueError(f"{prefix.rstrip('/')}: feature mean and scale must be finite, "
                              f"the scale positive (at least 1e-150)")
-        return cls(base, mean, scale)
+        relative_to = meta.get("relative_to")
+        if relative_to is None:
+            return cls(base, mean, scale)
+        groups = meta.get("groups")
+        if (not isinstance(relative_to, str) or not isinstance(groups, list) or not groups
+                or not all(isinstance(g, str) for g in groups) or len(set(groups)) != len(groups)):
+            raise ValueError(f"{prefix.rstrip('/')}: relative_to must be a label name and "
+                             f"groups a list of distinct group names")
+        key = f"{prefix}group_offsets"
+        if key not in arrays:
+            raise ValueError(f"{prefix.rstrip('/')}: the codec reads poses relative to "
+                             f"{relative_to!r} but the file holds no group offsets")
+        offsets = np.asarray(arrays[key], dtype=float)
+        if offsets.shape != (len(groups), n) or not np.all(np.isfinite(offsets)):
+            raise ValueError(f"{prefix.rstrip('/')}: group offsets must be finite with shape "
+                             f"({len(groups)}, {n}), got {offsets.shape}")
+        return cls(base, mean, scale, relative_to, tuple(groups), offsets)
+
+
+def _group_labels(relative_to: str, groups, n: int) -> list[str]:
+    """Every training motion's ``relative_to`` label, as text; refuses a missing one."""
+    if groups is None or len(groups) != n:
+        raise BayesmotionError(f"relative_to={relative_to!r} needs every training motion's "
+                               f"{relative_to!r} label")
+    missing = [i for i, g in enumerate(groups) if g is None]
+    if missing:
+        raise BayesmotionError(f"relative_to={relative_to!r}: {len(missing)} training trial(s) "
+                               f"have no {relative_to!r} label (first: trial {missing[0]}); "
+                               f"every training trial needs one")
+    return [str(g) for g in groups]
 
 
 def fit_codec(pose_space: str, motions, partners=None, root_mode: str = "velocity",
-              scaling: str = "type", rest_frames: bool = False, canonical_side: bool = False):
+              scaling: str = "type", rest_frames: bool = False, canonical_side: bool = False,
+              relative_to: str | None = None, groups=None):
     """The codec of ``pose_space`` ("angles": :class:`PoseCodec`, "affective":
-    :class:`AffectiveCodec`) fitted on one actor slot's motions."""
-    check_pose_space(pose_space, rest_frames, scaling)
+    :class:`AffectiveCodec`) fitted on one actor slot's motions; ``relative_to`` and
+    ``groups`` (every motion's label) as :meth:`AffectiveCodec.fit`."""
+    check_pose_space(pose_space, rest_frames, scaling, relative_to)
     if pose_space == "angles":
         return PoseCodec.fit(motions, partners, root_mode, scaling, rest_frames, canonical_side)
-    return AffectiveCodec.fit(motions, partners, root_mode, canonical_side)
+    return AffectiveCodec.fit(motions, partners, root_mode, canonical_side,
+                              relative_to=relative_to, groups=groups)
 
 
 def check_pose_space(pose_space: str, rest_frames: bool = False,
-                     scaling: str = "type") -> None:
+                     scaling: str = "type", relative_to: str | None = None) -> None:
     """Raise BayesmotionError unless ``pose_space`` is known and its options apply."""
     if pose_space not in POSE_SPACES:
         raise BayesmotionError(f"pose_space must be one of {'/'.join(POSE_SPACES)}, got "
                                f"{pose_space!r}")
+    if relative_to is not None:
+        if not isinstance(relative_to, str) or not relative_to:
+            raise BayesmotionError(f"relative_to must be None or a label name such as "
+                                   f"'content', got {relative_to!r}")
+        if relative_to == "emotion":
+            raise BayesmotionError("relative_to='emotion' would subtract each emotion's own "
+                                   "mean and leave nothing to tell the emotions apart: name "
+                                   "another label, such as 'content'")
+        if pose_space != "affective":
+            raise BayesmotionError(f"relative_to={relative_to!r} subtracts group means from "
+                                   f"the affective pose features, which a joint-angle model "
+                                   f"would have to add back to generate: use "
+                                   f"pose_space='affective'")
     if pose_space == "affective" and rest_frames:
         raise BayesmotionError("rest_frames turns joint angles only; the affective pose space "
                                "reads joint positions, which rest frames leave unchanged: "

@@ -12,6 +12,7 @@ from bayesmotion.data.bvh import read_bvh
 from bayesmotion.data.motion import Motion, Trial
 from bayesmotion.data.skeleton import Skeleton
 from bayesmotion.errors import BayesmotionError, SkeletonMismatchError
+from bayesmotion.model.data import encode_trial
 
 
 def _as_motion(x) -> Motion:
@@ -75,9 +76,17 @@ def clip_poses(model, clip) -> list[np.ndarray]:
     return clip_poses_and_sides(model, clip)[0]
 
 
-def clip_poses_and_sides(model, clip) -> tuple[list[np.ndarray], list[bool]]:
+def clip_poses_and_sides(model, clip, group=None) -> tuple[list[np.ndarray], list[bool]]:
     """:func:`clip_poses` and, per actor, whether the codec mirrored the clip to its canonical
-    side (``HGPDM(canonical_side=True)``; always False for arrays, already in model space)."""
+    side (``HGPDM(canonical_side=True)``; always False for arrays, already in model space).
+    ``group``: the clip's label of the model's ``relative_to`` (default: the trial's label)."""
+    Ys, mirrored, _ = encode_clip(model, clip, group)
+    return Ys, mirrored
+
+
+def encode_clip(model, clip, group=None) -> tuple[list[np.ndarray], list[bool], str | None]:
+    """:func:`clip_poses_and_sides` and the group the poses are read relative to (None for a
+    model without ``relative_to`` and for arrays, already in model space)."""
     if isinstance(clip, np.ndarray):
         arr = clip[None] if clip.ndim == 2 else clip
         if arr.ndim != 3 or arr.shape[0] != model.n_actors:
@@ -89,12 +98,13 @@ def clip_poses_and_sides(model, clip) -> tuple[list[np.ndarray], list[bool]]:
                                        f"the model expects {model.codecs[a].dim}")
         if not np.all(np.isfinite(arr)):
             raise BayesmotionError("pose array has NaN or infinite values")
-        return [np.asarray(x, dtype=np.float64) for x in arr], [False] * model.n_actors
+        return [np.asarray(x, dtype=np.float64) for x in arr], [False] * model.n_actors, None
     if isinstance(clip, str | os.PathLike) and not Path(clip).exists():
         raise BayesmotionError(f"{clip}: no such file")
     trial = clip_to_trial(model, clip)
-    enc = []
-    for a, codec in enumerate(model.codecs):
-        partner = trial.actors[1 - a] if codec.root_mode == "partner" else None
-        enc.append(codec.encode(trial.actors[a], partner))
-    return [e.Y for e in enc], [bool(e.mirrored) for e in enc]
+    relative_to = getattr(model.spec, "relative_to", None)
+    if relative_to is not None and group is None:
+        group = trial.labels.get(relative_to)
+    enc = encode_trial(model.codecs, trial, model.codecs[0].root_mode, group)
+    used = None if relative_to is None else str(group)
+    return [e.Y for e in enc], [bool(e.mirrored) for e in enc], used

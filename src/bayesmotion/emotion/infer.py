@@ -46,7 +46,7 @@ import numpy as np
 import scipy.optimize
 
 from bayesmotion._config import release_compiled_programs
-from bayesmotion.emotion.clip import clip_poses, clip_poses_and_sides
+from bayesmotion.emotion.clip import encode_clip
 from bayesmotion.emotion.density import (
     expanded_log_density,
     expanded_log_likelihood,
@@ -305,6 +305,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             and np.isfinite(likelihood_power) and likelihood_power > 0):
         raise BayesmotionError(f"likelihood_power must be a positive finite number, got "
                                f"{likelihood_power!r}")
+    styles, group = _relative_group(fitted, styles)
     given = _given_styles(fitted, couple, styles)
     n_eff = _resolve_effective_frames(fitted, effective_frames)
     if isinstance(model, Posterior):
@@ -313,13 +314,30 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
                             seed + k, n_walkers, n_steps // max(1, len(idx)) + 50, max_iter,
                             latent_uncertainty and k == 0, likelihood_power, emotion_starts,
                             n_eff, int(level_starts), float(start_jitter), method,
-                            staged_start, pad_to)
+                            staged_start, pad_to, group)
                  for k, i in enumerate(idx)]
         return pool_posteriors(parts)
     return _infer_one(model, model.predictor(), clip, frames, given, prior, seed, n_walkers,
                       n_steps, max_iter, latent_uncertainty, likelihood_power, emotion_starts,
                       n_eff, int(level_starts), float(start_jitter), method, staged_start,
-                      pad_to)
+                      pad_to, group)
+
+
+def _relative_group(model, styles):
+    """(styles without the label the poses are read relative to, that label or None): a model
+    fitted with ``relative_to`` takes the clip's group from ``styles`` when it is there (kept
+    in ``styles`` as well when it is also a style factor), else from the trial's labels."""
+    rel = model.spec.relative_to
+    if rel is None or not styles or rel not in styles:
+        return styles, None
+    group = styles[rel]
+    if not isinstance(group, str):
+        raise BayesmotionError(f"styles[{rel!r}] must be the clip's {rel!r} label (one of "
+                               f"{list(model.codecs[0].groups)}), got {group!r}: the model "
+                               f"reads poses relative to their {rel!r}")
+    if rel not in model.spec.factors:
+        styles = {k: v for k, v in styles.items() if k != rel}
+    return styles, group
 
 
 def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
@@ -339,7 +357,7 @@ def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
 def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, max_iter,
                latent_uncertainty, likelihood_power=1.0, emotion_starts="vertices",
                n_eff=(float("inf"), False), level_starts=1, start_jitter=START_JITTER,
-               method="ensemble", staged_start=False, pad_to=None):
+               method="ensemble", staged_start=False, pad_to=None, group=None):
     import emcee
 
     t0 = time.perf_counter()
@@ -350,7 +368,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
         stages[name] = now - last[0]
         last[0] = now
 
-    Ys, mirrored = clip_poses_and_sides(model, clip)
+    Ys, mirrored, group = encode_clip(model, clip, group)
     if frames is not None:
         ok = isinstance(frames, slice)
         if not ok and not isinstance(frames, int | np.integer | str):
@@ -404,6 +422,10 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     stage("project")
     latents = {"X": params["X"], "I": params["I"]}
     ood = _distance_from_training(model, P, params, fixed_j, Ys, T)
+    if group is not None and not model.codecs[0].knows(group):
+        ood["unknown_group"] = {"label": model.spec.relative_to, "group": group,
+                                "training_groups": list(model.codecs[0].groups)}
+        ood["out_of_distribution"] = True
     stage("ood")
     sd = {}
     if latent_uncertainty:
@@ -503,7 +525,12 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
 def _ood_message(ood: dict, weight) -> str:
     """What the out-of-distribution warning says: the statistic that tripped it first."""
     frames = [n for n in STATISTICS if n in ood and ood[n]["median"] > ood[n]["threshold"]]
-    if frames:
+    if "unknown_group" in ood:
+        u = ood["unknown_group"]
+        why = (f"its {u['label']} {u['group']!r} is none of the training trials' "
+               f"{u['training_groups']}, so the poses have no reference of their own and were "
+               f"read relative to the mean over all training frames")
+    elif frames:
         worst = worst_statistic({n: ood[n] for n in frames})
         what = (f"negative log predictive density per output of the {worst[:-8]} layer"
                 if worst.endswith("_density") else f"standardised {worst}-layer residual")
@@ -607,7 +634,8 @@ def infer_online(model, clip, *, start: int | None = None, step: int = 5, **kwar
     compilation; ``kwargs`` are :func:`infer_emotion`'s."""
     if int(step) != step or step < 1:
         raise BayesmotionError(f"step must be a positive number of frames, got {step!r}")
-    n = clip_poses(model, clip)[0].shape[0]
+    fitted = model.model if isinstance(model, Posterior) else model
+    n = encode_clip(fitted, clip, _relative_group(fitted, kwargs.get("styles"))[1])[0][0].shape[0]
     k = start or (model.spec.order + 3)
     kwargs.setdefault("pad_to", n)  # every prefix one compilation (infer_emotion's pad_to)
     while True:

@@ -330,7 +330,10 @@ def in_distribution_weight(assessment: dict) -> float:
     """The share of the clip's frames within the training frames' threshold, in its worst
     statistic, relative to the share expected of a training recording
     (``REFERENCE_QUANTILE``); in [0, 1]. The weight of the model's evidence against the prior
-    in the emotion answer (module docstring)."""
+    in the emotion answer (module docstring). 0 for a clip of a group (``relative_to``) the
+    training trials lack: its poses have no reference of their own."""
+    if assessment.get("unknown_group"):
+        return 0.0
     inside = min(1.0 - assessment[n]["beyond"] for n in STATISTICS if n in assessment)
     w = float(np.clip(inside / REFERENCE_QUANTILE, 0.0, 1.0))
     if "recording" in assessment:

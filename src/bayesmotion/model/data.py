@@ -46,17 +46,26 @@ def fit_codecs(spec: HGPDM, dataset: MotionDataset) -> tuple:
         partners = [t.actors[1 - a] for t in dataset] if spec.root_mode == "partner" else None
         if spec.root_mode == "partner" and dataset.n_actors != 2:
             raise BayesmotionError("root_mode='partner' needs two-actor trials")
+        groups = (None if spec.relative_to is None
+                  else [t.labels.get(spec.relative_to) for t in dataset])
         codecs.append(fit_codec(spec.pose_space, motions, partners, spec.root_mode,
-                                spec.scaling, spec.rest_frames, spec.canonical_side))
+                                spec.scaling, spec.rest_frames, spec.canonical_side,
+                                spec.relative_to, groups))
     return tuple(codecs)
 
 
-def encode_trial(codecs, trial, root_mode):
-    """Per actor (Y (T, D_a), anchor) of one trial."""
+def encode_trial(codecs, trial, root_mode, group=None):
+    """Per actor (Y (T, D_a), anchor) of one trial. ``group``: the trial's label of the codecs'
+    ``relative_to`` (default: read from the trial's labels)."""
     out = []
     for a, codec in enumerate(codecs):
         partner = trial.actors[1 - a] if root_mode == "partner" else None
-        out.append(codec.encode(trial.actors[a], partner))
+        relative_to = getattr(codec, "relative_to", None)
+        if relative_to is None:
+            out.append(codec.encode(trial.actors[a], partner))
+        else:
+            g = trial.labels.get(relative_to) if group is None else group
+            out.append(codec.encode(trial.actors[a], partner, group=g))
     return out
 
 

@@ -74,6 +74,9 @@ def _build(meta: dict, arrays, path: Path) -> FittedHGPDM:
         raise ModelFileError(f"{path}: corrupted model file: its specification's pose space "
                              f"{spec.pose_space!r} does not match its codecs' "
                              f"{[c.pose_space for c in codecs]}")
+    if any(getattr(c, "relative_to", None) != spec.relative_to for c in codecs):
+        raise _bad(path, f"relative_to={spec.relative_to!r} does not match the codecs' "
+                         f"{[getattr(c, 'relative_to', None) for c in codecs]}")
     if any(c.root_mode != spec.root_mode for c in codecs) or (
             spec.root_mode == "partner" and len(codecs) != 2):
         raise _bad(path, f"root mode {spec.root_mode!r} does not match the codecs' "

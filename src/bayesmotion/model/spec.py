@@ -48,6 +48,12 @@ class HGPDM:
             and size, for inferring emotion across actions; such a model cannot generate
             motion; ``rest_frames`` and a ``scaling`` other than the default are refused:
             the features are standardised one by one).
+        relative_to: None (default), or with ``pose_space="affective"`` a trial label such as
+            "content": every frame's features are modelled relative to the mean of the
+            training trials sharing that label (:mod:`bayesmotion.codecs.affective`), so that
+            a model pooling several actions models how each clip departs from its action.
+            Every training trial and every inferred clip needs the label; a clip whose label
+            the training trials lack is reported out of distribution.
         dynamics_linear: the linear part of the dynamics' mean. "stable" (default): an
             explicit autoregression i_t = sum_l a_l i_{t-l} + f(i_{t-1}, .., i_{t-o}) with the
             coefficients a parameterised through partial autocorrelations so that only
@@ -104,6 +110,7 @@ class HGPDM:
     rest_frames: bool = False
     canonical_side: bool = False
     pose_space: str = "angles"
+    relative_to: str | None = None
     dynamics_linear: str = "stable"
     dynamics_weight: float = 1.0
     inducing: int | None = None
@@ -112,7 +119,7 @@ class HGPDM:
     priors: Priors = field(default_factory=Priors)
 
     def __post_init__(self):
-        check_pose_space(self.pose_space, self.rest_frames, self.scaling)
+        check_pose_space(self.pose_space, self.rest_frames, self.scaling, self.relative_to)
         if self.order not in (1, 2):
             raise BayesmotionError(f"order must be 1 or 2, got {self.order}")
         if self.latent_dim < 1 or self.interaction_dim < 1:
@@ -175,7 +182,7 @@ class HGPDM:
         d = {k: getattr(self, k) for k in ("latent_dim", "interaction_dim", "order",
                                              "root_mode", "scaling", "rest_frames",
                                              "canonical_side", "pose_space",
-                                             "dynamics_linear", "dynamics_weight",
+                                             "relative_to", "dynamics_linear", "dynamics_weight",
                                              "inducing", "periodic",
                                              "mapping_noise_floor")}
         d["interaction_factors"] = list(self.interaction_factors or ())
@@ -194,6 +201,7 @@ class HGPDM:
         d.setdefault("inducing", None)
         d.setdefault("periodic", False)
         d.setdefault("mapping_noise_floor", 0.0)
+        d.setdefault("relative_to", None)
         return cls(**d)
 
     def fit(self, dataset: MotionDataset, **kwargs) -> FittedHGPDM:
