@@ -231,14 +231,18 @@ def render_docs(page: str, results: dict[str, dict]) -> str:
 # result files written besides the suite's own runs, listed after the benchmark named: the 40
 # clips of ``bandai_inference.py --all-contents``, the walks from jittered level starts and from
 # three starts per level, the baselines alone on both sets of folds (``--baselines-only``)
-# (``--start-jitter 0.02``), and ``device_timings.py --merge`` of a lent
+# (``--start-jitter 0.02``), the sparse model with capped projections, plain and relative to each
+# clip's content (``--inducing 100 --projection-iter 400 [--relative-to content]``), and
+# ``device_timings.py --merge`` of a lent
 # GPU's part with this CPU's (run by hand: the suite has no GPU), and this CPU's part alone
 # (``device_timings.py``, with the newer infer_emotion variants)
 EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all", "bandai_inference_jittered",
                                       "bandai_inference_starts3", "bandai_baselines",
                                       "bandai_inference_sparse100",
                                       "bandai_inference_sparse100_iter400",
-                                      "bandai_inference_all_sparse100_iter400"),
+                                      "bandai_inference_all_sparse100_iter400",
+                                      "bandai_inference_sparse100_iter400_relative",
+                                      "bandai_inference_all_sparse100_iter400_relative"),
                  "infer_speed": ("device_timings", "device_timings_cpu")}
 
 
