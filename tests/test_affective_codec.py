@@ -124,6 +124,7 @@ def test_model_files_before_pose_spaces_load_as_joint_angle_models(tiny_model, t
 
     def strip(meta):
         del meta["spec"]["pose_space"]
+        del meta["spec"]["relative_to"]
         for c in meta["codecs"]:
             del c["pose_space"]
 
@@ -240,6 +241,11 @@ def test_relative_model_infers_round_trips_and_flags_an_unknown_group(relative_m
         bm.infer_emotion(model, bare, **kw)
     with pytest.raises(BayesmotionError, match=r"styles\['repetition'\] must be the clip's"):
         bm.infer_emotion(model, bare, styles={"repetition": [0.5, 0.5]}, **kw)
+    # the online iterator reads the group the same way (one prefix: the whole clip)
+    online = list(bm.infer_online(model, bare, start=trial.n_frames,
+                                  styles={"repetition": "1"}, **kw))
+    assert len(online) == 1
+    np.testing.assert_allclose(online[0].mean, ep.mean, rtol=1e-9)
     # a group no training trial had: flagged, its probabilities the prior's
     foreign = Trial(trial.actors, {**trial.labels, "repetition": "7"}, trial.name)
     with pytest.warns(OutOfDistributionWarning, match="'7' is none of the training trials'"):
@@ -264,6 +270,25 @@ def test_relative_model_infers_round_trips_and_flags_an_unknown_group(relative_m
     np.testing.assert_allclose(again.mean, ep.mean, rtol=1e-9)
 
 
+def test_relative_model_refuses_what_it_cannot_read(relative_model, tiny_data, tmp_path):
+    from bayesmotion.emotion.batch import infer_many
+    from bayesmotion.evaluation.evaluate import online_sharpening
+
+    def spec(**kw):
+        return bm.HGPDM(latent_dim=2, interaction_dim=2, pose_space="affective", **kw)
+
+    with pytest.raises(BayesmotionError, match=r"no 'contnet' label; their labels are \["):
+        spec(relative_to="contnet").fit(tiny_data, max_iter=2, progress=False)
+    with pytest.raises(BayesmotionError, match="is also a style factor"):
+        spec(relative_to="repetition", interaction_factors=("emotion", "repetition")).fit(
+            tiny_data, max_iter=2, progress=False)
+    with pytest.raises(BayesmotionError, match="online_sharpening sets them"):
+        online_sharpening(relative_model, tiny_data.trials[:1], styles={"repetition": "1"})
+    pytest.importorskip("dask.distributed")
+    with pytest.raises(BayesmotionError, match="clip files carry no labels"):
+        infer_many(relative_model, [str(tmp_path / "a.bvh")], None, progress=False)
+
+
 def test_relative_model_files_with_bad_groups_are_refused(relative_model, tmp_path):
     good = tmp_path / "good.npz"
     relative_model.save(good)
@@ -273,8 +298,12 @@ def test_relative_model_files_with_bad_groups_are_refused(relative_model, tmp_pa
         bm.load(no_offsets)
     short = _rewrite(good, tmp_path / "b.npz",
                      lambda k, v: v[:2] if k == "codec1/group_offsets" else v)
-    with pytest.raises(ModelFileError, match=r"group offsets must be finite with shape \(3, 18\)"):
+    with pytest.raises(ModelFileError, match=r"at most 1e6 in size, with shape \(3, 18\)"):
         bm.load(short)
+    huge = _rewrite(good, tmp_path / "e.npz",
+                    lambda k, v: v + 1e9 if k == "codec0/group_offsets" else v)
+    with pytest.raises(ModelFileError, match="at most 1e6 in size"):
+        bm.load(huge)
 
     def spec_plain(meta):
         meta["spec"]["relative_to"] = None

@@ -105,6 +105,8 @@ def test_quick_sparse_relative_run_fits_that_model(bandai_root, all_contents_qui
     assert res["settings"]["inducing"] == 6 and res["spec"]["inducing"] == 6
     assert res["settings"]["relative_to"] == res["spec"]["relative_to"] == "content"
     assert len(res["result"]["trials"]) == 8
+    # every held-out clip's content is in its fold: answered from the evidence, not the prior
+    assert not all(np.allclose(t["probabilities"], 0.25) for t in res["result"]["trials"])
     exact = all_contents_quick
     assert exact["spec"]["inducing"] is None and exact["settings"]["inducing"] is None
     assert exact["spec"]["relative_to"] is None

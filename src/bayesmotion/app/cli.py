@@ -451,6 +451,7 @@ def _cmd_infer(a):
                           "map_objective": ep.info["map_objective"],
                           "out_of_distribution": ep.out_of_distribution,
                           "ood_score": ep.info["ood"]["score"],
+                          "unknown_group": ep.info["ood"].get("unknown_group"),
                           "in_distribution_weight": ep.info.get("in_distribution_weight"),
                           "effective_frames": ep.info["effective_frames"]
                           if ep.info["effective_frames"] != float("inf") else None,

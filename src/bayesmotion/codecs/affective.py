@@ -215,9 +215,11 @@ class AffectiveCodec:
             raise ValueError(f"{prefix.rstrip('/')}: the codec reads poses relative to "
                              f"{relative_to!r} but the file holds no group offsets")
         offsets = np.asarray(arrays[key], dtype=float)
-        if offsets.shape != (len(groups), n) or not np.all(np.isfinite(offsets)):
-            raise ValueError(f"{prefix.rstrip('/')}: group offsets must be finite with shape "
-                             f"({len(groups)}, {n}), got {offsets.shape}")
+        # standardised group means: a few units; a bound keeps the subtraction finite
+        if (offsets.shape != (len(groups), n) or not np.all(np.isfinite(offsets))
+                or np.max(np.abs(offsets), initial=0.0) > 1e6):
+            raise ValueError(f"{prefix.rstrip('/')}: group offsets must be finite, at most 1e6 "
+                             f"in size, with shape ({len(groups)}, {n}), got {offsets.shape}")
         return cls(base, mean, scale, relative_to, tuple(groups), offsets)
 
 
@@ -265,7 +267,7 @@ def check_pose_space(pose_space: str, rest_frames: bool = False,
             raise BayesmotionError(f"relative_to={relative_to!r} subtracts group means from "
                                    f"the affective pose features, which a joint-angle model "
                                    f"would have to add back to generate: use "
-                                   f"pose_space='affective'")
+                                   f"pose_space='affective' (CLI --pose-space affective)")
     if pose_space == "affective" and rest_frames:
         raise BayesmotionError("rest_frames turns joint angles only; the affective pose space "
                                "reads joint positions, which rest frames leave unchanged: "

@@ -213,7 +213,8 @@ def infer_many(model, clips, out=None, *, client=None, workers: int = 2,
         scheduler: the address of a running scheduler (e.g. ``tcp://10.0.0.5:8786``).
         progress: a progress bar over the clips.
         **infer_kwargs: passed to every :func:`~bayesmotion.emotion.infer.infer_emotion` call
-            (e.g. ``seed``, ``couple``, ``n_steps``).
+            (e.g. ``seed``, ``couple``, ``n_steps``). A model fitted with ``relative_to`` needs
+            ``styles={label: group}``: every clip of the run is read against that group.
     Returns:
         one row (dict of the table's columns) per clip, in the order given; rows found in
         ``out`` from an earlier run are returned as read (:func:`parse_row`).
@@ -231,6 +232,12 @@ def infer_many(model, clips, out=None, *, client=None, workers: int = 2,
     check_pad_to(infer_kwargs.get("pad_to"))
     data = model_bytes(model)
     fitted = worker_model(data)
+    rel = fitted.spec.relative_to
+    if rel is not None and rel not in (infer_kwargs.get("styles") or {}):
+        raise BayesmotionError(f"the model reads poses relative to their {rel!r}, and clip "
+                               f"files carry no labels: give every clip's {rel!r} as "
+                               f"styles={{{rel!r}: ...}} (one of {list(fitted.codecs[0].groups)}"
+                               f"; one run reads every clip against that group)")
     named = _named(clips, fitted.n_actors)
     check_workers(workers)
     cols = columns(list(fitted.levels["emotion"]))

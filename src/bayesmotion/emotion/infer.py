@@ -635,8 +635,12 @@ def infer_online(model, clip, *, start: int | None = None, step: int = 5, **kwar
     if int(step) != step or step < 1:
         raise BayesmotionError(f"step must be a positive number of frames, got {step!r}")
     fitted = model.model if isinstance(model, Posterior) else model
-    n = encode_clip(fitted, clip, _relative_group(fitted, kwargs.get("styles"))[1])[0][0].shape[0]
-    k = start or (model.spec.order + 3)
+    styles = kwargs.get("styles")
+    if styles is not None and not isinstance(styles, dict):
+        raise BayesmotionError(f"styles must be a dict factor -> label or coordinates, got "
+                               f"{type(styles).__name__}")
+    n = encode_clip(fitted, clip, _relative_group(fitted, styles)[1])[0][0].shape[0]
+    k = start or (fitted.spec.order + 3)
     kwargs.setdefault("pad_to", n)  # every prefix one compilation (infer_emotion's pad_to)
     while True:
         k = min(k, n)

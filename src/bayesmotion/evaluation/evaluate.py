@@ -427,8 +427,14 @@ def online_sharpening(model, trials, fractions=(0.25, 0.5, 0.75, 1.0), seed: int
         model: a FittedHGPDM (or a Posterior, as for :func:`infer_emotion`).
         trials: labelled Trials (their labels of the model's other factors are given).
         fractions: increasing prefix fractions in (0, 1].
-        **infer_kwargs: further options of :func:`infer_emotion`.
+        **infer_kwargs: further options of :func:`infer_emotion` (not ``styles``, ``seed``,
+            ``latent_uncertainty``, which this sets: the styles from each trial's labels).
     """
+    taken = {"styles", "seed", "latent_uncertainty"} & set(infer_kwargs)
+    if taken:
+        raise BayesmotionError(f"infer_kwargs may not set {sorted(taken)}: online_sharpening "
+                               f"sets them (each trial's known styles, and the poses' group of "
+                               f"a model with relative_to, come from the trial's labels)")
     fr = np.asarray(fractions, dtype=float)
     if fr.ndim != 1 or fr.size < 2 or np.any(np.diff(fr) <= 0) or fr[0] <= 0 or fr[-1] > 1:
         raise BayesmotionError(f"fractions must increase within (0, 1], at least two, got "

@@ -40,6 +40,10 @@ def fit_codecs(spec: HGPDM, dataset: MotionDataset) -> tuple:
         raise BayesmotionError(f"canonical_side mirrors one-actor clips; this dataset has "
                                f"{dataset.n_actors} actors per trial, and mirroring each alone "
                                f"would break their interaction")
+    if spec.relative_to is not None and spec.relative_to not in dataset.levels:
+        raise BayesmotionError(f"relative_to={spec.relative_to!r}: the trials have no "
+                               f"{spec.relative_to!r} label; their labels are "
+                               f"{sorted(dataset.levels)}")
     codecs = []
     for a in range(dataset.n_actors):
         motions = [t.actors[a] for t in dataset]

@@ -165,6 +165,10 @@ class HGPDM:
                 raise BayesmotionError(f"{name}: dataset has no labels for {missing}; "
                                        f"it has {list(dataset.levels)}")
             spec = replace(spec, **{name: val})
+        if spec.relative_to is not None and spec.relative_to in spec.factors:
+            raise BayesmotionError(f"relative_to={spec.relative_to!r} is also a style factor: "
+                                   f"a label the poses are read relative to carries no style "
+                                   f"left to model; drop it from the style factors")
         if spec.root_mode is None:
             spec = replace(spec, root_mode="partner" if dataset.n_actors == 2 else "heading")
         return spec
