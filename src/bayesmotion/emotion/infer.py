@@ -325,8 +325,8 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
 
 def _relative_group(model, styles):
     """(styles without the label the poses are read relative to, that label or None): a model
-    fitted with ``relative_to`` takes the clip's group from ``styles`` when it is there (kept
-    in ``styles`` as well when it is also a style factor), else from the trial's labels."""
+    fitted with ``relative_to`` takes the clip's group from ``styles`` when it is there, else
+    from the trial's labels (the label is never a style factor: ``HGPDM.resolved``)."""
     rel = model.spec.relative_to
     if rel is None or not styles or rel not in styles:
         return styles, None
@@ -335,9 +335,7 @@ def _relative_group(model, styles):
         raise BayesmotionError(f"styles[{rel!r}] must be the clip's {rel!r} label (one of "
                                f"{list(model.codecs[0].groups)}), got {group!r}: the model "
                                f"reads poses relative to their {rel!r}")
-    if rel not in model.spec.factors:
-        styles = {k: v for k, v in styles.items() if k != rel}
-    return styles, group
+    return {k: v for k, v in styles.items() if k != rel}, group
 
 
 def _resolve_effective_frames(model, effective_frames) -> tuple[float, bool]:
