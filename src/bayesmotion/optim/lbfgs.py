@@ -77,6 +77,23 @@ def _direction(g, S, Y, rho, n, head):
     return -jax.lax.fori_loop(0, m, oldest_first, gamma * q)
 
 
+class _Run(NamedTuple):
+    """The loop's state: the accepted point and curvature memory (:class:`_State`), and the
+    line search in progress (along ``p`` with slope ``slope``, trying step ``t`` in the bracket
+    ``(lo, hi)``, ``f_lo``/``g_lo`` at ``lo``, ``k`` evaluations so far); ``started`` is 0 until
+    the start has been evaluated."""
+    s: _State
+    p: jnp.ndarray
+    slope: jnp.ndarray
+    t: jnp.ndarray
+    lo: jnp.ndarray
+    hi: jnp.ndarray
+    f_lo: jnp.ndarray
+    g_lo: jnp.ndarray
+    k: jnp.ndarray
+    started: jnp.ndarray
+
+
 def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int = 10,
              gtol: float = 1e-5, ftol: float | None = None,
              max_line_search: int = 30, c1: float = 1e-4, c2: float = 0.9) -> LbfgsResult:
@@ -87,66 +104,67 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
     only when that fails too. Returns the last accepted point, never one worse than ``x0``.
     ``ftol`` defaults to L-BFGS-B's 2.2e-9 (factr 1e7 in float64), at least 10 machine epsilons
     of ``x0``'s dtype (float32 on an accelerator).
+
+    Each pass of the one ``lax.while_loop`` makes exactly one evaluation (the start's, then the
+    line searches' trial steps), so ``fun_and_grad`` is traced, and compiled, once: a program
+    holding it twice (the start outside the loop, the trials inside) took twice as long to
+    compile, and compilation is most of a first projection's time.
     """
     if ftol is None:
         ftol = max(2.220446049250313e-09, 10.0 * float(jnp.finfo(x0.dtype).eps))
-
-    def evaluate(x):
-        f, g = fun_and_grad(x)
-        ok = jnp.isfinite(f) & jnp.all(jnp.isfinite(g))
-        return jnp.where(ok, f, jnp.inf), g
-
-    f0, g0 = evaluate(x0)
+    if max_line_search < 1:
+        raise ValueError(f"max_line_search must be at least 1, got {max_line_search}")
     d = x0.shape[0]
     dt = x0.dtype
-    state = _State(x0, f0, g0, jnp.zeros((memory, d), dt), jnp.zeros((memory, d), dt),
-                   jnp.zeros(memory, dt), jnp.asarray(0), jnp.asarray(0), jnp.asarray(0),
-                   jnp.asarray(1), jnp.where(jnp.isfinite(f0), -1, NONFINITE_START))
-    state = state._replace(status=jnp.where(
-        (state.status < 0) & (jnp.max(jnp.abs(g0)) <= gtol), CONVERGED_GTOL, state.status))
 
-    def line_search(s: _State, p, slope):
-        """Weak Wolfe step by bracketing (Lewis & Overton 2013): double the step while the
-        Armijo condition holds and the slope is still steep, bisect once a step fails Armijo.
-        Returns (t, f, g, evaluations, accepted); without a Wolfe step within the budget, the
-        longest step found that satisfies Armijo (if any)."""
-        def cond(c):
-            return (c[-1] == 0) & (c[5] < max_line_search)
-
-        def body(c):
-            t, lo, hi, f_lo, g_lo, k, _ = c
-            f_t, g_t = evaluate(s.x + t * p)
-            armijo = f_t <= s.f + c1 * t * slope
-            steep = jnp.dot(g_t, p) < c2 * slope
-            wolfe = armijo & ~steep
-            hi = jnp.where(armijo, hi, t)
-            grow = armijo & steep
-            lo, f_lo = jnp.where(grow, t, lo), jnp.where(grow, f_t, f_lo)
-            g_lo = jnp.where(grow, g_t, g_lo)
-            nxt = jnp.where(jnp.isfinite(hi), 0.5 * (lo + hi), 2.0 * lo)
-            # done: 1 a Wolfe step at t; the others keep searching
-            return (jnp.where(wolfe, t, nxt), lo, hi, jnp.where(wolfe, f_t, f_lo),
-                    jnp.where(wolfe, g_t, g_lo), k + 1, wolfe.astype(jnp.int32))
-
+    def start_search(s: _State, r: _Run) -> _Run:
+        """The next line search from the accepted point: the quasi-Newton direction (steepest
+        descent when it is not a descent direction) and the first trial step."""
+        p = _direction(s.g, s.S, s.Y, s.rho, s.n, s.head)
+        slope = jnp.dot(s.g, p)
+        bad = ~(slope < 0)
+        p = jnp.where(bad, -s.g, p)
+        slope = jnp.where(bad, -jnp.dot(s.g, s.g), slope)
         # no curvature known (the first iteration, or after a reset): a step of at most unit
         # length, 1 / |p| as in L-BFGS-B when the gradient is longer than 1
         t0 = jnp.where(s.n > 0, 1.0, jnp.minimum(1.0, 1.0 / jnp.linalg.norm(p)))
-        c = jax.lax.while_loop(cond, body, (jnp.asarray(t0, dt), jnp.asarray(0.0, dt),
-                                            jnp.asarray(jnp.inf, dt), s.f, s.g,
-                                            jnp.asarray(0), jnp.asarray(0, jnp.int32)))
-        t, lo, _, f_acc, g_acc, k, wolfe = c
-        t_acc = jnp.where(wolfe == 1, t, lo)
-        return t_acc, f_acc, g_acc, k, t_acc > 0
+        return r._replace(s=s, p=p, slope=slope, t=jnp.asarray(t0, dt),
+                          lo=jnp.asarray(0.0, dt), hi=jnp.asarray(jnp.inf, dt), f_lo=s.f,
+                          g_lo=s.g, k=jnp.asarray(0))
 
-    def step(s: _State) -> _State:
-        p = _direction(s.g, s.S, s.Y, s.rho, s.n, s.head)
-        slope = jnp.dot(s.g, p)
-        bad = ~(slope < 0)  # not a descent direction: restart from steepest descent
-        p = jnp.where(bad, -s.g, p)
-        slope = jnp.where(bad, -jnp.dot(s.g, s.g), slope)
-        t, f_t, g_t, k, accepted = line_search(s, p, slope)
-        x_t = s.x + t * p
-        sv, yv = x_t - s.x, g_t - s.g
+    def first(r: _Run, f0, g0) -> _Run:
+        """The start evaluated: the run stops at a non-finite start, a small gradient or a
+        zero iteration limit, else the first line search begins."""
+        status = jnp.where(jnp.isfinite(f0), -1, NONFINITE_START)
+        status = jnp.where((status < 0) & (jnp.max(jnp.abs(g0)) <= gtol), CONVERGED_GTOL,
+                           status)
+        status = jnp.where((status < 0) & (max_iter <= 0), MAX_ITER, status)
+        return start_search(r.s._replace(f=f0, g=g0, status=status), r)
+
+    def trial(r: _Run, f_t, g_t) -> _Run:
+        """One line-search trial evaluated: weak Wolfe by bracketing (Lewis & Overton 2013):
+        double the step while the Armijo condition holds and the slope is still steep, bisect
+        once a step fails Armijo. The search ends at a Wolfe step or after ``max_line_search``
+        trials (then with the longest step found that satisfies Armijo, if any) and the
+        iteration completes."""
+        s = r.s
+        t = r.t
+        armijo = f_t <= s.f + c1 * t * r.slope
+        steep = jnp.dot(g_t, r.p) < c2 * r.slope
+        wolfe = armijo & ~steep
+        hi = jnp.where(armijo, r.hi, t)
+        grow = armijo & steep
+        lo, f_lo = jnp.where(grow, t, r.lo), jnp.where(grow, f_t, r.f_lo)
+        g_lo = jnp.where(grow, g_t, r.g_lo)
+        k = r.k + 1
+        searching = r._replace(t=jnp.where(jnp.isfinite(hi), 0.5 * (lo + hi), 2.0 * lo),
+                               lo=lo, hi=hi, f_lo=f_lo, g_lo=g_lo, k=k)
+        # the iteration's end (Nocedal & Wright Alg. 7.4's update of the memory)
+        t_acc = jnp.where(wolfe, t, lo)
+        f_acc, g_acc = jnp.where(wolfe, f_t, f_lo), jnp.where(wolfe, g_t, g_lo)
+        accepted = t_acc > 0
+        x_t = s.x + t_acc * r.p
+        sv, yv = x_t - s.x, g_acc - s.g
         sy = jnp.dot(sv, yv)
         keep = accepted & (sy > 1e-10 * jnp.dot(yv, yv))
         S = s.S.at[s.head].set(jnp.where(keep, sv, s.S[s.head]))
@@ -157,8 +175,8 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
         n = jnp.where(keep, jnp.minimum(s.n + 1, memory), jnp.where(retry, 0, s.n))
         head = jnp.where(keep, (s.head + 1) % memory, s.head)
         x = jnp.where(accepted, x_t, s.x)
-        f = jnp.where(accepted, f_t, s.f)
-        g = jnp.where(accepted, g_t, s.g)
+        f = jnp.where(accepted, f_acc, s.f)
+        g = jnp.where(accepted, g_acc, s.g)
         nit = s.nit + 1
         reduction = (s.f - f) / jnp.maximum(jnp.maximum(jnp.abs(s.f), jnp.abs(f)), 1.0)
         status = jnp.where(
@@ -166,9 +184,25 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
             jnp.where(accepted & (jnp.max(jnp.abs(g)) <= gtol), CONVERGED_GTOL,
                       jnp.where(accepted & (reduction <= ftol), CONVERGED_FTOL,
                                 jnp.where(nit >= max_iter, MAX_ITER, -1))))
-        return _State(x, f, g, S, Y, rho, n, head, nit, s.nfev + k, status)
+        done = start_search(_State(x, f, g, S, Y, rho, n, head, nit, s.nfev + k, status), r)
+        end = wolfe | (k >= max_line_search)
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(end, a, b), done, searching)
 
-    state = state._replace(status=jnp.where((state.status < 0) & (max_iter <= 0), MAX_ITER,
-                                            state.status))
-    out = jax.lax.while_loop(lambda s: s.status < 0, step, state)
+    def body(r: _Run) -> _Run:
+        started = r.started > 0
+        f, g = fun_and_grad(jnp.where(started, r.s.x + r.t * r.p, r.s.x))  # the one call
+        ok = jnp.isfinite(f) & jnp.all(jnp.isfinite(g))
+        f = jnp.where(ok, f, jnp.inf)
+        nxt = jax.tree_util.tree_map(lambda a, b: jnp.where(started, a, b), trial(r, f, g),
+                                     first(r, f, g))
+        return nxt._replace(started=jnp.asarray(1))
+
+    zeros = jnp.zeros(d, dt)
+    state = _State(x0, jnp.asarray(jnp.inf, dt), zeros, jnp.zeros((memory, d), dt),
+                   jnp.zeros((memory, d), dt), jnp.zeros(memory, dt), jnp.asarray(0),
+                   jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(-1))
+    run = _Run(state, zeros, jnp.asarray(0.0, dt), jnp.asarray(0.0, dt), jnp.asarray(0.0, dt),
+               jnp.asarray(jnp.inf, dt), jnp.asarray(jnp.inf, dt), zeros, jnp.asarray(0),
+               jnp.asarray(0))
+    out = jax.lax.while_loop(lambda r: r.s.status < 0, body, run).s
     return LbfgsResult(out.x, out.f, out.g, out.nit, out.nfev, out.status)
