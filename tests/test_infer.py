@@ -680,13 +680,17 @@ def test_credible_regions_of_degenerate_posteriors_and_off_simplex_points():
 def test_prefixes_padded_to_the_whole_clip_share_one_compilation(tiny_model, tiny_data,
                                                                  monkeypatch):
     """pad_to: a 4-frame prefix padded as a 40-frame clip gives the unpadded answer (the padded
-    frames are masked; the projection's scaling sees more zero-curvature coordinates, so equal
-    to its tolerance, not bit for bit); the first pad_to=40 call compiles the 40-frame
-    projection, and a longer prefix with the same pad_to compiles nothing new."""
+    frames are masked; sums over more zeros round differently, so equal to a tolerance, not bit
+    for bit); the first pad_to=40 call compiles the 40-frame projection, and a longer prefix
+    with the same pad_to compiles nothing new. Over 20 L-BFGS iterations from the nearest
+    frames the two paths stay together; over hundreds that rounding alone can end them in
+    different local optima of the clip density (in one run the padded level-0 projection found
+    one 9 nats lower), which is not what padding is about."""
     from bayesmotion.emotion import projection
 
     trial = tiny_data[4]
-    kw = {"couple": "c1", "n_steps": 200, "latent_uncertainty": False, "seed": 3}
+    kw = {"couple": "c1", "n_steps": 200, "latent_uncertainty": False, "seed": 3,
+          "max_iter": 20, "staged_start": False}
     plain = bm.infer_emotion(tiny_model, trial, frames=slice(0, 4), **kw)
     programs = projection._scaled_lbfgs._cache_size()
     padded = bm.infer_emotion(tiny_model, trial, frames=slice(0, 4), pad_to=40, **kw)

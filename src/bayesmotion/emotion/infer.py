@@ -81,7 +81,12 @@ from bayesmotion.emotion.result import EmotionPosterior, pool_posteriors
 from bayesmotion.errors import BayesmotionError, warn
 from bayesmotion.inference.ensemble import run_de
 from bayesmotion.inference.posterior import Posterior
-from bayesmotion.inference.target import capped_covariance, draw_start, in_halves
+from bayesmotion.inference.target import (
+    capped_covariance,
+    difference_hessian,
+    draw_start,
+    in_halves,
+)
 from bayesmotion.model.generate import style_coords
 from bayesmotion.model.params import STYLE_PREFIX, simplex_to_style, style_to_simplex
 from bayesmotion.model.predict import sparse_layers, style_vectors
@@ -133,11 +138,6 @@ def _loglik_at_coords(W, E, int_factors, dyn_factors, free):
     """(n,) untempered clip log-likelihood at emotion coordinates W (n, K), the simplex closed."""
     return jax.vmap(lambda w: expanded_log_likelihood(E, {"emotion": w}, dict(free), int_factors,
                                                       dyn_factors))(W)
-
-
-@partial(jax.jit, static_argnames=_STYLE_STATIC)
-def _style_hessian(x, E, conc, power, int_factors, dyn_factors, free):
-    return jax.hessian(_style_logp)(x, E, conc, power, int_factors, dyn_factors, free)
 
 
 def _given_styles(model, couple, styles) -> dict:
@@ -447,8 +447,11 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
         return in_halves(lambda x: _style_logp_batch(x, *sty), xs, W)
 
     # Laplace start; variances capped at 1 in stick-breaking units (beyond that the style is
-    # barely identified and the quadratic approximation means little)
-    cov = capped_covariance(-np.asarray(_style_hessian(jnp.asarray(x0), *sty)), 1.0)
+    # barely identified and the quadratic approximation means little). The Hessian by
+    # differences of the gradient the style mode compiled (a non-finite entry counts as no
+    # curvature, so the cap).
+    H = difference_hessian(lambda x: _style_neg_vg(jnp.asarray(x), *sty)[1], x0)
+    cov = capped_covariance(np.where(np.isfinite(H), H, 0.0), 1.0)
     p0 = draw_start(lambda x: _style_logp_batch(x, *sty), x0, cov, W,
                     np.random.default_rng(seed))
     stage("expand")

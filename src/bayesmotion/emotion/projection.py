@@ -42,6 +42,9 @@ from bayesmotion.optim import lbfgs
 
 ROUND_ITER = 100  # L-BFGS iterations between re-estimates of the diagonal scaling
 HVP_CHUNK = 64  # Hessian-vector products per vmapped batch
+# probes per call of the compiled Hessian-vector products (:func:`_hvp_rows`): the diagonal's
+# probes and the banded Hessian's (more of them) share one program
+HVP_BLOCK = 8
 # default sd of the jitter of project_levels' starts, in latent units: none, the nearest-frame
 # latents exactly (the latents' sd is about 0.45; benchmarks/results/projection_starts.json
 # measured jittered starts at 0.02)
@@ -301,8 +304,21 @@ def diagonal_scale(a: np.ndarray) -> np.ndarray:
 def _diag_flat(params, V, args, statics, keys=None, part="all") -> np.ndarray:
     """Exact diag of the Hessian of -log p (or its ``part``) over the entries ``keys`` of
     ``params`` (all: None; flat), from the probes ``V`` of :func:`_diag_probes`."""
-    return np.sum(np.asarray(V) * np.asarray(
-        _hvps(params, V, *args, **statics, keys=keys, part=part)), 0)
+    return np.sum(np.asarray(V) * _hvp_rows(params, V, args, statics, keys, part), 0)
+
+
+def _hvp_rows(params, V, args, statics, keys=None, part="all") -> np.ndarray:
+    """:func:`_hvps` of the rows of ``V`` (n, d), in calls of :data:`HVP_BLOCK` rows (the last
+    padded with zeros), so that every probe set over the same parameters (the diagonal's, the
+    banded Hessian's) runs one compiled program instead of one per probe count."""
+    V = np.asarray(V, dtype=np.float64)
+    n, d = V.shape
+    padded = np.zeros((-(-n // HVP_BLOCK) * HVP_BLOCK, d))
+    padded[:n] = V
+    return np.concatenate([
+        np.asarray(_hvps(params, jnp.asarray(padded[i:i + HVP_BLOCK]), *args, **statics,
+                         keys=keys, part=part), dtype=np.float64)
+        for i in range(0, len(padded), HVP_BLOCK)])[:n]
 
 
 def diag_hessian(params, args, statics) -> dict:
@@ -449,8 +465,7 @@ def banded_hessian(params, args, statics) -> np.ndarray:
         v = np.zeros(d)
         v[i] = 1.0
         probes.append(v)
-    HV = np.asarray(_hvps(params, jnp.asarray(np.stack(probes)), *args, **statics),
-                    dtype=np.float64)
+    HV = _hvp_rows(params, np.stack(probes), args, statics)
     H = np.zeros((d, d))
     f = frame[lat]
     for r, (period, c, j) in enumerate(rows):
@@ -465,7 +480,8 @@ def banded_hessian(params, args, statics) -> np.ndarray:
     return H
 
 
-def laplace_log_evidence(params, args, statics, T: int) -> tuple[float, dict]:
+def laplace_log_evidence(params, args, statics, T: int, value: float | None = None
+                         ) -> tuple[float, dict]:
     """Laplace approximation of log of the integral of p(Y*, X*, I*, s_free) over the latents
     of the clip's T real frames and the free styles in ``params``, around their optimum
     ``params``.
@@ -473,6 +489,8 @@ def laplace_log_evidence(params, args, statics, T: int) -> tuple[float, dict]:
     Padded frames (beyond T) carry no density, so their rows are dropped. Directions of the
     Hessian that are not positive (an optimum not reached: L-BFGS stopped at its iteration
     limit) are floored at 1e-6 of the largest curvature and counted in ``info``.
+    ``value``: log p at ``params`` when already known (a projection's L-BFGS ends with it:
+    minus its ``fun``), which spares compiling the density's value on its own.
     Returns (log evidence, info: objective, logdet, dim, n_nonpositive).
     """
     H = banded_hessian(params, args, statics)
@@ -486,7 +504,8 @@ def laplace_log_evidence(params, args, statics, T: int) -> tuple[float, dict]:
     ev = np.linalg.eigvalsh(0.5 * (H + H.T))
     floor = 1e-6 * max(float(ev.max()), 1e-300)
     logdet = float(np.sum(np.log(np.maximum(ev, floor))))
-    value = float(-_neg_value_and_grad(params, *args, **statics)[0])
+    if value is None:
+        value = float(-_neg_value_and_grad(params, *args, **statics)[0])
     d = int(keep.sum())
     return value + 0.5 * d * LOG_2PI - 0.5 * logdet, {
         "log_density": value, "logdet": logdet, "dim": d, "n_nonpositive": int(np.sum(ev <= 0))}
@@ -605,7 +624,7 @@ def project_levels(model, P, Ys, B, T, args, statics, max_iter, inferred, conc,
         best, objectives, evidences = None, [], []
         for j in range(n_starts):
             p, res = best_fit([f for f, o in zip(fits, owner, strict=True) if o == (k, j)])
-            log_ev, info = laplace_log_evidence(p, args_k, statics, T)
+            log_ev, info = laplace_log_evidence(p, args_k, statics, T, value=-float(res.fun))
             objectives.append(float(res.fun))
             evidences.append(float(log_ev))
             if best is None or res.fun < best[1].fun:
