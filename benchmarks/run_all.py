@@ -65,6 +65,7 @@ BENCHMARKS = [
     "projection_budget",
     "sparse_inference",
     "compile_cache",
+    "first_call",
     "online_padding",
     "style_shear",
     "independence_refit",

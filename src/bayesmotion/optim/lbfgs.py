@@ -106,9 +106,9 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
     of ``x0``'s dtype (float32 on an accelerator).
 
     Each pass of the one ``lax.while_loop`` makes exactly one evaluation (the start's, then the
-    line searches' trial steps), so ``fun_and_grad`` is traced, and compiled, once: a program
-    holding it twice (the start outside the loop, the trials inside) took twice as long to
-    compile, and compilation is most of a first projection's time.
+    line searches' trial steps), so ``fun_and_grad`` is traced, and compiled, once: a second
+    call site would put the objective's program in twice, and compiling is most of a first
+    projection's time (``benchmarks/results/first_call.json``).
     """
     if ftol is None:
         ftol = max(2.220446049250313e-09, 10.0 * float(jnp.finfo(x0.dtype).eps))
