@@ -49,6 +49,10 @@ TO_STICKS = jax.jit(jax.vmap(simplex_to_style))
 STICK_LOG_JACOBIAN = jax.jit(jax.vmap(style_log_jacobian))
 
 
+# (W, K, K) style matrices, (K, K) concentrations -> (W,) Dirichlet log-priors summed over levels
+LOG_PRIOR_ROWS = jax.jit(lambda S, conc: jnp.sum(log_dirichlet(S, conc), -1))
+
+
 def style_slices(unravel, x0) -> dict[str, np.ndarray]:
     """factor -> flat indices (K * (K - 1),) of its unconstrained style block, in C order."""
     tree = unravel(jnp.asarray(x0))
@@ -189,4 +193,4 @@ def _prior_step(S, S_new, logp, conc, random):
 
 def _log_prior_rows(S, conc) -> np.ndarray:
     """(W, K, K) style matrices -> (W,) their Dirichlet log-prior, summed over levels."""
-    return np.asarray(jnp.sum(log_dirichlet(jnp.asarray(S), jnp.asarray(conc)), -1))
+    return np.asarray(LOG_PRIOR_ROWS(jnp.asarray(S), jnp.asarray(conc)), dtype=np.float64)
