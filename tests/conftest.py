@@ -26,6 +26,9 @@ os.environ["BAYESMOTION_COMPILE_CACHE"] = "off"
 _OWN_CACHE = "JAX_COMPILATION_CACHE_DIR" not in os.environ
 if _OWN_CACHE:
     os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="bayesmotion-tests-jax-")
+    # every program, as bayesmotion.enable_compilation_cache does: JAX's default (1 s) leaves
+    # out the many small programs each new process (a CLI call, a notebook kernel) compiles
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 # The test modules import arviz; two workers importing it for the first time on one day race on
 # its daily stamp file. import_arviz survives that race, so each worker imports arviz through it
