@@ -122,7 +122,7 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
         descent when it is not a descent direction) and the first trial step."""
         p = _direction(s.g, s.S, s.Y, s.rho, s.n, s.head)
         slope = jnp.dot(s.g, p)
-        bad = ~(slope < 0)
+        bad = ~(slope < 0)  # not a descent direction: restart from steepest descent
         p = jnp.where(bad, -s.g, p)
         slope = jnp.where(bad, -jnp.dot(s.g, s.g), slope)
         # no curvature known (the first iteration, or after a reset): a step of at most unit
@@ -198,9 +198,10 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
         return nxt._replace(started=jnp.asarray(1))
 
     zeros = jnp.zeros(d, dt)
+    # nfev counts the start's evaluation from the outset (the first pass makes it)
     state = _State(x0, jnp.asarray(jnp.inf, dt), zeros, jnp.zeros((memory, d), dt),
                    jnp.zeros((memory, d), dt), jnp.zeros(memory, dt), jnp.asarray(0),
-                   jnp.asarray(0), jnp.asarray(0), jnp.asarray(0), jnp.asarray(-1))
+                   jnp.asarray(0), jnp.asarray(0), jnp.asarray(1), jnp.asarray(-1))
     run = _Run(state, zeros, jnp.asarray(0.0, dt), jnp.asarray(0.0, dt), jnp.asarray(0.0, dt),
                jnp.asarray(jnp.inf, dt), jnp.asarray(jnp.inf, dt), zeros, jnp.asarray(0),
                jnp.asarray(0))
