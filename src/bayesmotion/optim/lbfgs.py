@@ -132,21 +132,22 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
                           lo=jnp.asarray(0.0, dt), hi=jnp.asarray(jnp.inf, dt), f_lo=s.f,
                           g_lo=s.g, k=jnp.asarray(0))
 
-    def first(r: _Run, f0, g0) -> _Run:
+    def first(s: _State, f0, g0) -> _State:
         """The start evaluated: the run stops at a non-finite start, a small gradient or a
         zero iteration limit, else the first line search begins."""
         status = jnp.where(jnp.isfinite(f0), -1, NONFINITE_START)
         status = jnp.where((status < 0) & (jnp.max(jnp.abs(g0)) <= gtol), CONVERGED_GTOL,
                            status)
         status = jnp.where((status < 0) & (max_iter <= 0), MAX_ITER, status)
-        return start_search(r.s._replace(f=f0, g=g0, status=status), r)
+        return s._replace(f=f0, g=g0, status=status)
 
-    def trial(r: _Run, f_t, g_t) -> _Run:
+    def trial(r: _Run, f_t, g_t) -> tuple[_State, _Run, jnp.ndarray]:
         """One line-search trial evaluated: weak Wolfe by bracketing (Lewis & Overton 2013):
         double the step while the Armijo condition holds and the slope is still steep, bisect
         once a step fails Armijo. The search ends at a Wolfe step or after ``max_line_search``
-        trials (then with the longest step found that satisfies Armijo, if any) and the
-        iteration completes."""
+        trials (then with the longest step found that satisfies Armijo, if any), and the
+        iteration with it. Returns (the state after the iteration, the search continued, whether
+        it ended)."""
         s = r.s
         t = r.t
         armijo = f_t <= s.f + c1 * t * r.slope
@@ -184,17 +185,20 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
             jnp.where(accepted & (jnp.max(jnp.abs(g)) <= gtol), CONVERGED_GTOL,
                       jnp.where(accepted & (reduction <= ftol), CONVERGED_FTOL,
                                 jnp.where(nit >= max_iter, MAX_ITER, -1))))
-        done = start_search(_State(x, f, g, S, Y, rho, n, head, nit, s.nfev + k, status), r)
-        end = wolfe | (k >= max_line_search)
-        return jax.tree_util.tree_map(lambda a, b: jnp.where(end, a, b), done, searching)
+        done = _State(x, f, g, S, Y, rho, n, head, nit, s.nfev + k, status)
+        return done, searching, wolfe | (k >= max_line_search)
 
     def body(r: _Run) -> _Run:
         started = r.started > 0
         f, g = fun_and_grad(jnp.where(started, r.s.x + r.t * r.p, r.s.x))  # the one call
         ok = jnp.isfinite(f) & jnp.all(jnp.isfinite(g))
         f = jnp.where(ok, f, jnp.inf)
-        nxt = jax.tree_util.tree_map(lambda a, b: jnp.where(started, a, b), trial(r, f, g),
-                                     first(r, f, g))
+        done, searching, end = trial(r, f, g)
+        s = jax.tree_util.tree_map(lambda a, b: jnp.where(started, a, b), done, first(r.s, f, g))
+        # a new line search after the start and after each completed iteration (one
+        # direction computed per pass)
+        nxt = jax.tree_util.tree_map(lambda a, b: jnp.where(started & ~end, a, b), searching,
+                                     start_search(s, r))
         return nxt._replace(started=jnp.asarray(1))
 
     zeros = jnp.zeros(d, dt)
