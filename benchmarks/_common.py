@@ -94,6 +94,21 @@ def cached_fit(path: Path | None, fit: Callable[[], object], what: str = "the mo
     return model
 
 
+def saved_demo_model(folder: Path, fps: float, max_iter: int):
+    """The demo's split of the built-in handshakes at ``fps`` (``bayesmotion.app.demo._split``:
+    the training trials and one held-out trial per emotion) and ``HGPDM()`` fitted by MAP on the
+    training trials for ``max_iter`` iterations, saved as ``folder/model.npz``.
+    Returns (model path, train, held)."""
+    from bayesmotion.app.demo import _split
+    from bayesmotion.datasets import load_handshakes
+    from bayesmotion.model.spec import HGPDM
+
+    train, held = _split(load_handshakes(fps=fps))
+    path = Path(folder) / "model.npz"
+    HGPDM().fit(train, max_iter=max_iter, progress=False).save(path)
+    return path, train, held
+
+
 def write_json(path: Path, obj: dict) -> None:
     """Write JSON atomically: a temp file in the same folder, then os.replace."""
     path = Path(path)

@@ -37,7 +37,7 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from _common import headline, standalone_main  # noqa: E402
+from _common import headline, saved_demo_model, standalone_main  # noqa: E402
 
 NAME = "compile_cache"
 FULL = {"fps": 10.0, "max_iter": 150}
@@ -115,17 +115,12 @@ def _process_rows(what: str, runs: dict) -> list:
 
 
 def run(quick: bool) -> dict:
-    from bayesmotion.app.demo import _split
     from bayesmotion.data.bvh import write_bvh
-    from bayesmotion.datasets import load_handshakes
-    from bayesmotion.model.spec import HGPDM
 
     cfg = QUICK if quick else FULL
-    train, held = _split(load_handshakes(fps=cfg["fps"]))
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        model = tmp / "model.npz"
-        HGPDM().fit(train, max_iter=cfg["max_iter"], progress=False).save(model)
+        model, train, held = saved_demo_model(tmp, cfg["fps"], cfg["max_iter"])
         trial = held[0]
         files = []
         for a, motion in enumerate(trial.actors):

@@ -32,7 +32,14 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-from _common import RESULTS, headline, machine_info, show_headlines, write_json  # noqa: E402
+from _common import (  # noqa: E402
+    RESULTS,
+    headline,
+    machine_info,
+    saved_demo_model,
+    show_headlines,
+    write_json,
+)
 
 NAME = "first_call"
 ROOT = HERE.parent
@@ -88,16 +95,10 @@ def _summary(rows: list[dict]) -> dict:
 
 
 def run(quick: bool, baseline: str = BASELINE) -> dict:
-    from bayesmotion.app.demo import _split
-    from bayesmotion.datasets import load_handshakes
-    from bayesmotion.model.spec import HGPDM
-
     cfg = QUICK if quick else FULL
-    train, _ = _split(load_handshakes(fps=cfg["fps"]))
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        model = tmp / "model.npz"
-        HGPDM().fit(train, max_iter=cfg["max_iter"], progress=False).save(model)
+        model, _, _ = saved_demo_model(tmp, cfg["fps"], cfg["max_iter"])
         base = tmp / "baseline"
         subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(base),
                         baseline], check=True, capture_output=True)

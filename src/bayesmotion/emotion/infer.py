@@ -275,7 +275,7 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             (:func:`bayesmotion.shapes.padded_length`; at least the clip's frames after
             ``frames``; a longer clip is refused). Each padded length compiles its programs
             once per process: on this 2-core CPU a fresh process's first inference with a
-            demo-size model took 58.6 s, the next 2.0 s
+            demo-size model took 19.8 s, the next 1.4 s
             (``benchmarks/results/compile_cache.json``). Growing prefixes of one stream
             (``frames=slice(0, k)``) given the stream's final length share one compilation, at
             the cost of every prefix computing over the padded frames (:func:`infer_online`
