@@ -133,8 +133,9 @@ def minimize(fun_and_grad: Callable, x0: jnp.ndarray, max_iter, *, memory: int =
                           g_lo=s.g, k=jnp.asarray(0))
 
     def first(s: _State, f0, g0) -> _State:
-        """The start evaluated: the run stops at a non-finite start, a small gradient or a
-        zero iteration limit, else the first line search begins."""
+        """The state with the start's value and gradient: stopped at a non-finite start, a
+        small gradient or a zero iteration limit, else running (the first line search
+        follows)."""
         status = jnp.where(jnp.isfinite(f0), -1, NONFINITE_START)
         status = jnp.where((status < 0) & (jnp.max(jnp.abs(g0)) <= gtol), CONVERGED_GTOL,
                            status)
