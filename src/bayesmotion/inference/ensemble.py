@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesmotion.errors import BayesmotionError
+from bayesmotion.inference.target import in_halves
 
 
 class EnsembleRun(NamedTuple):
@@ -103,8 +104,9 @@ def run_de(log_prob, args: tuple, p0, n_steps: int, seed: int = 0, *, static: tu
     if isinstance(n_steps, bool) or not isinstance(n_steps, int | np.integer) or n_steps < 1:
         raise BayesmotionError(f"n_steps must be a positive integer, got {n_steps!r}")
     kw = dict(static)
-    # in the half-ensembles the moves evaluate (and draw_start's in_halves): one compilation
-    lp0 = jnp.concatenate([log_prob(p0[:W // 2], *args, **kw), log_prob(p0[W // 2:], *args, **kw)])
+    # in the half-ensembles the moves evaluate, as draw_start does: one compilation
+    lp0 = jnp.asarray(in_halves(lambda x: log_prob(x, *args, **kw), np.asarray(p0), W),
+                      dtype=p0.dtype)
     if not bool(jnp.all(jnp.isfinite(lp0))):
         raise BayesmotionError("every starting walker needs a finite log-density; "
                                f"{int(jnp.sum(~jnp.isfinite(lp0)))} of {W} have none")
