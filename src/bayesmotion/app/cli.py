@@ -52,7 +52,7 @@ from bayesmotion.datasets.loaders import load_data
 from bayesmotion.emotion.batch import infer_many
 from bayesmotion.emotion.evidence import calibrate_evidence
 from bayesmotion.emotion.infer import PROJECTION_ITER, infer_emotion
-from bayesmotion.emotion.ood import OutOfDistributionWarning
+from bayesmotion.emotion.ood import OutOfDistributionWarning, UnseenStyleWarning
 from bayesmotion.emotion.projection import START_JITTER
 from bayesmotion.errors import BayesmotionError
 from bayesmotion.evaluation.evaluate import format_confusion, leave_one_out
@@ -425,6 +425,7 @@ def _cmd_infer(a):
     m = load(a.model)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OutOfDistributionWarning)
+        warnings.simplefilter("always", UnseenStyleWarning)
         ep = infer_emotion(m, a.clips if len(a.clips) > 1 else a.clips[0], couple=a.couple,
                            styles=_group_styles(m, a.group), seed=a.seed,
                            likelihood_power=a.likelihood_power,
@@ -432,7 +433,7 @@ def _cmd_infer(a):
                            start_jitter=a.start_jitter, staged_start=a.staged_start,
                            max_iter=a.max_iter)
     for w in caught:  # the flag is part of the answer: one line on stderr, and in the JSON
-        if issubclass(w.category, OutOfDistributionWarning):
+        if issubclass(w.category, OutOfDistributionWarning | UnseenStyleWarning):
             print(f"warning: {w.message}", file=sys.stderr)
         else:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -452,6 +453,7 @@ def _cmd_infer(a):
                           "out_of_distribution": ep.out_of_distribution,
                           "ood_score": ep.info["ood"]["score"],
                           "unknown_group": ep.info["ood"].get("unknown_group"),
+                          "unseen_levels": ep.info["unseen_levels"],
                           "in_distribution_weight": ep.info.get("in_distribution_weight"),
                           "effective_frames": ep.info["effective_frames"]
                           if ep.info["effective_frames"] != float("inf") else None,

@@ -57,6 +57,7 @@ from bayesmotion.emotion.evidence import evidence_power, level_posterior
 from bayesmotion.emotion.ood import (
     STATISTICS,
     OutOfDistributionWarning,
+    UnseenStyleWarning,
     assess,
     clip_z2,
     in_distribution_weight,
@@ -177,6 +178,55 @@ def _style_setup(model, given: dict, prior):
     return fixed, conc, inferred
 
 
+def unseen_levels(model, fixed: dict) -> dict[str, list[str]]:
+    """Emotion levels no training trial had together with the given styles, with the layers
+    (``"interaction"``, ``"dynamics"``) whose style cells they miss.
+
+    Args:
+        model: a fitted model.
+        fixed: factor -> the given (K_f,) style coordinates over the levels; a factor left out
+            is free and matches any level. A coordinate vector matches every level it puts
+            weight on.
+
+    With one-hot styles a layer's kernel is zero between different style cells, so a level
+    whose cell (with the given styles) holds no training frame is predicted by that layer's
+    GP prior alone: it is then judged by how well the prior explains the clip, against
+    levels judged by fitted mappings. A clip of an action seen in training only under other
+    emotions (``HGPDM(interaction_factors=("content", "emotion"))``, a held-out clip in
+    leave-one-clip-out) meets exactly this.
+    """
+    E = np.asarray(model.data.onehot["emotion"]) > 0
+    out: dict[str, list[str]] = {}
+    for layer, factors in (("interaction", model.spec.interaction_factors),
+                           ("dynamics", model.spec.dynamics_factors)):
+        if "emotion" not in factors:
+            continue
+        match = np.ones(E.shape[0], dtype=bool)
+        for f in factors:
+            if f != "emotion" and f in fixed:
+                match &= (np.asarray(model.data.onehot[f]) @ (np.asarray(fixed[f]) != 0)) > 0
+        for k, level in enumerate(model.levels["emotion"]):
+            if not np.any(match & E[:, k]):
+                out.setdefault(level, []).append(layer)
+    return out
+
+
+def _unseen_message(model, unseen: dict, fixed: dict) -> str:
+    """What the unseen-level warning says."""
+    given = ", ".join(f"{f}={model.levels[f][int(np.argmax(v))]!r}"
+                      if np.count_nonzero(v) == 1 else f"{f}={np.round(v, 3).tolist()}"
+                      for f, v in fixed.items() if len(model.levels[f]) > 1)
+    levels = ", ".join(f"{lv!r} ({' and '.join(ls)})" for lv, ls in unseen.items())
+    learned = any(STYLE_PREFIX + f in model.params for f in model.spec.factors)
+    how = ("their predictions borrow from other cells only through the learned style vectors"
+           if learned else "with one-hot styles they are judged by the GP prior alone, so the "
+                           "levels the training data cover are favoured")
+    return (f"no training trial had emotion {levels} together with the given styles "
+            f"({given}): {how} (EmotionPosterior.info['unseen_levels']). A model that reads "
+            f"the clip relative to that label, e.g. HGPDM(relative_to='content') instead of "
+            f"a content style factor, compares every emotion on training data")
+
+
 def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=None,
                   method: str = "ensemble", seed: int = 0, n_walkers: int = 64, n_steps: int = 150,
                   n_draws: int = 4, max_iter: int = PROJECTION_ITER,
@@ -284,7 +334,9 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             unpadded one up to the projection's optimisation tolerance. None: the clip's own
             length.
     Returns:
-        EmotionPosterior.
+        EmotionPosterior. ``info["unseen_levels"]`` lists the emotion levels no training trial
+        had together with the given styles (:func:`unseen_levels`); they also raise an
+        :class:`~bayesmotion.emotion.ood.UnseenStyleWarning`.
     """
     check_infer_args(seed, n_walkers, n_steps, n_draws, couple, styles, prior)
     release_compiled_programs()  # clips of new lengths compile anew: keep the maps bounded
@@ -387,6 +439,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     mask = jnp.asarray(np.arange(B) < T)
     Yp = tuple(jnp.asarray(np.concatenate([Y, np.zeros((B - T, Y.shape[1]))])) for Y in Ys)
     fixed, conc, inferred = _style_setup(model, given, prior)
+    unseen, fixed_coords = unseen_levels(model, fixed), dict(fixed)
     # given coordinates -> the kernels' style vectors (learned ones when the fit learned them)
     fixed = dict(zip(fixed, style_vectors(P, list(fixed), list(fixed.values())), strict=True))
     statics = {"int_factors": tuple(model.spec.interaction_factors),
@@ -492,6 +545,7 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
             "emotion_starts": emotion_starts, "level_starts": level_starts,
             "start_jitter": start_jitter, "staged_start": bool(staged_start), **levels_info,
             "start_objectives": [float(r.fun) for _, r in fits],
+            "unseen_levels": unseen,
             "n_samples": int(chain.shape[0] * chain.shape[1]),
             "ess": float(chain.shape[0] * chain.shape[1] / np.max(tau))}
     lat = {"X": np.asarray(latents["X"])[:, :T], "I": np.asarray(latents["I"])[:T], **sd}
@@ -515,6 +569,8 @@ def _infer_one(model, P, clip, frames, given, prior, seed, n_walkers, n_steps, m
     info["seconds"] = time.perf_counter() - t0
     if ood["out_of_distribution"]:
         warn(_ood_message(ood, info.get("in_distribution_weight")), OutOfDistributionWarning)
+    if unseen:
+        warn(_unseen_message(model, unseen, fixed_coords), UnseenStyleWarning)
     return EmotionPosterior(tuple(model.levels["emotion"]), styles["emotion"], lat,
                             np.swapaxes(lp, 0, 1),
                             tuple(model.levels["couple"]) if cl else None,

@@ -84,6 +84,12 @@ class OutOfDistributionWarning(UserWarning):
     evidence about the clip."""
 
 
+class UnseenStyleWarning(UserWarning):
+    """Some emotion level was never seen in training together with the clip's given styles
+    (``info["unseen_levels"]``): with one-hot styles such a level is judged by its layers'
+    GP prior alone, so its evidence is not comparable with the other levels'."""
+
+
 def held_out_z2(fit: LayerFit, groups: np.ndarray) -> np.ndarray:
     """(M,) standardised squared residual of every training row when its group (recording) is
     held out, averaged over the output columns (module docstring)."""

@@ -260,8 +260,10 @@ class EmotionPosterior:
         eta = self.info.get("likelihood_power", 1.0)
         tempered = "" if eta == 1.0 else f"; likelihood power {eta:.3g}"
         ood = "; OUT OF DISTRIBUTION" if self.out_of_distribution else ""
+        unseen = self.info.get("unseen_levels") or {}
+        unseen = f"; never seen with the given styles: {', '.join(unseen)}" if unseen else ""
         return (f"{self.label} (P={p.max():.2f}; {self.info.get('n_frames', '?')} frames"
-                f"{tempered}{ood}); mean {coords}")
+                f"{tempered}{ood}{unseen}); mean {coords}")
 
     __repr__ = __str__
 

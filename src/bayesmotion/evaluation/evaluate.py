@@ -34,7 +34,7 @@ from bayesmotion.emotion.evidence import (
     level_posterior,
 )
 from bayesmotion.emotion.infer import infer_emotion
-from bayesmotion.emotion.ood import OutOfDistributionWarning
+from bayesmotion.emotion.ood import OutOfDistributionWarning, UnseenStyleWarning
 from bayesmotion.emotion.projection import START_JITTER
 from bayesmotion.emotion.result import label_set_size, top_level
 from bayesmotion.errors import BayesmotionError
@@ -370,6 +370,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
                      "in_distribution_weight": ep.info.get("in_distribution_weight"),
                      "seconds": float(ep.info["seconds"]),
                      "out_of_distribution": ep.out_of_distribution,
+                     "unseen_levels": ep.info.get("unseen_levels", {}),
                      "ood_score": ep.info["ood"]["score"],
                      "intervals_cover": bool(np.all((truth >= lo) & (truth <= hi))),
                      "true_coordinate_interval": [float(lo[levels.index(held.labels["emotion"])]),
@@ -388,6 +389,10 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
                          if all(r["hpd_covered"] is not None for r in rows) else None),
         "label_set_coverage": float(np.mean([r["true"] in r["label_set"] for r in rows])),
         "out_of_distribution_rate": float(np.mean([r["out_of_distribution"] for r in rows])),
+        # folds whose true emotion no training trial had with the held-out trial's other
+        # labels (infer_emotion's unseen_levels): judged by the GP prior alone there
+        "true_level_unseen_rate": float(np.mean([r["true"] in r["unseen_levels"]
+                                                 for r in rows])),
         "interval_coverage": float(np.mean([r["intervals_cover"] for r in rows])),
         "credible_level": q,
         "refit_iter": refit_iter,
@@ -517,8 +522,9 @@ def interval_coverage(truth, mean, var, qs=(0.5, 0.9), fps: float = 1.0, n_obser
 
 
 def infer_flagged(*args, **kwargs):
-    """:func:`infer_emotion` whose out-of-distribution flag is kept on the result (and in the
-    harness's rows) instead of warning once per held-out clip."""
+    """:func:`infer_emotion` whose out-of-distribution flag and unseen levels are kept on the
+    result (and in the harness's rows) instead of warning once per held-out clip."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OutOfDistributionWarning)
+        warnings.simplefilter("ignore", UnseenStyleWarning)
         return infer_emotion(*args, **kwargs)
