@@ -4,7 +4,8 @@
                                           [--all-contents] [--start-jitter SD]
                                           [--level-starts K] [--rescore]
                                           [--inducing M] [--projection-iter N]
-                                          [--relative-to LABEL] [--baselines-only]
+                                          [--relative-to LABEL] [--content-factor]
+                                          [--baselines-only]
 
 The one-actor H-GPDM (emotion in the interaction and dynamics layers) is MAP-fitted on the 16
 Bandai walk clips (walk, walk-back, walk-left, walk-right x neutral/happy/angry/sad; quick: the
@@ -29,6 +30,10 @@ its own result file (``results/bandai_inference[_all]_sparseM[_iterN].json``).
 to the mean of the fold's training clips of its content, the model's counterpart of
 ``GroupCentred`` (``results/bandai_inference[...]_relative.json``); the other actions, whose
 contents the walk model has never seen, are then flagged and answered with the prior.
+``--content-factor`` (with ``--all-contents``) makes the content a style factor of both layers
+beside the emotion (``results/bandai_inference[...]_content_factor.json``): every held-out
+clip's own emotion is then a style cell no training clip has (``infer_emotion``'s
+``info["unseen_levels"]``; ``result["true_level_unseen_rate"]``).
 ``--baselines-only`` runs the baselines alone on the walks' and the 40 clips' folds, in
 seconds (``results/bandai_baselines.json``).
 Targets (issue: honest inference): accuracy >= 85% on the walks (>= 75% on all 40 clips,
@@ -302,20 +307,22 @@ def baselines_only(root: str | Path | None = None) -> dict:
 
 def result_name(all_contents: bool = False, start_jitter: float = 0.0,
                 level_starts: int = 1, inducing: int | None = None,
-                projection_iter: int | None = None, relative_to: str | None = None) -> str:
+                projection_iter: int | None = None, relative_to: str | None = None,
+                content_factor: bool = False) -> str:
     """The result file's name for these options."""
     return (NAME + ("_all" if all_contents else "")
             + (f"_sparse{inducing}" if inducing else "")
             + (f"_iter{projection_iter}" if projection_iter else "")
             + (f"_starts{level_starts}" if level_starts > 1
                else "_jittered" if start_jitter else "")
-            + ("_relative" if relative_to else ""))
+            + ("_relative" if relative_to else "")
+            + ("_content_factor" if content_factor else ""))
 
 
 def run(quick: bool, root: str | Path | None = None, pose_space: str | None = None,
         all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1,
         inducing: int | None = None, projection_iter: int | None = None,
-        relative_to: str | None = None) -> dict:
+        relative_to: str | None = None, content_factor: bool = False) -> dict:
     import bayesmotion  # noqa: F401  (float64 on)
     from bayesmotion.evaluation.evaluate import format_confusion, leave_one_out
     from bayesmotion.model.data import encode_trial
@@ -334,17 +341,19 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
         cfg["projection_iter"] = int(projection_iter)
     cfg["rest_frames"] = cfg["pose_space"] == "angles"  # joint angles only (see module doc)
     cfg["relative_to"] = relative_to
+    cfg["content_factor"] = bool(content_factor)
     root = Path(root) if root is not None else DATA_ROOT
     name = result_name(all_contents, start_jitter, level_starts, cfg["inducing"],
-                       projection_iter, relative_to)
+                       projection_iter, relative_to, content_factor)
     base = {"name": name, "mode": "quick" if quick else "full", "settings": dict(cfg)}
     if not bandai_present(root):
         return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
     t0 = time.perf_counter()
     what = "clips" if all_contents else "walks"
     clips = _clips(cfg, root, what)
-    spec = HGPDM(latent_dim=6, interaction_dim=3, interaction_factors=("emotion",),
-                 dynamics_factors=("emotion",), rest_frames=cfg["rest_frames"],
+    factors = ("content", "emotion") if content_factor else ("emotion",)
+    spec = HGPDM(latent_dim=6, interaction_dim=3, interaction_factors=factors,
+                 dynamics_factors=factors, rest_frames=cfg["rest_frames"],
                  canonical_side=cfg["canonical_side"], pose_space=cfg["pose_space"],
                  inducing=cfg["inducing"], relative_to=cfg["relative_to"])
     t_fit = time.perf_counter()
@@ -424,6 +433,10 @@ def main(argv=None) -> int:
                     help="fit HGPDM(relative_to=LABEL), e.g. content: the features relative to "
                          "the mean of the training clips with the clip's label; writes "
                          "results/bandai_inference[...]_relative.json")
+    ap.add_argument("--content-factor", action="store_true",
+                    help="with --all-contents: the content a style factor of both layers "
+                         "beside the emotion; writes results/bandai_inference[...]"
+                         "_content_factor.json")
     ap.add_argument("--baselines-only", action="store_true",
                     help="the baselines alone on the walks' and the 40 clips' folds (seconds): "
                          "writes results/bandai_baselines.json")
@@ -443,6 +456,9 @@ def main(argv=None) -> int:
         for row in res["headline"]:
             print(f"{row['metric']}: {row['value']:.1f}%  ({row['note']})")
         return 0
+    if a.content_factor and (not a.all_contents or a.relative_to or a.rescore):
+        ap.error("--content-factor needs --all-contents and neither --relative-to (the "
+                 "content cannot be both) nor --rescore")
     if a.inducing is not None and a.inducing < 2:
         ap.error(f"--inducing must be at least 2, got {a.inducing}")
     if a.projection_iter is not None and a.projection_iter < 1:
@@ -451,7 +467,7 @@ def main(argv=None) -> int:
         return rescore(a.all_contents, a.start_jitter, a.level_starts, a.inducing,
                        a.projection_iter, a.relative_to)
     res = run(a.quick, a.root, a.pose_space, a.all_contents, a.start_jitter, a.level_starts,
-              a.inducing, a.projection_iter, a.relative_to)
+              a.inducing, a.projection_iter, a.relative_to, a.content_factor)
     write_json(RESULTS / f"{res['name']}.json", {**res, "status": "ok",
                                                  "machine": machine_info()})
     print(res.get("skipped") or res["confusion_table"])

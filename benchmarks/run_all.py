@@ -245,7 +245,8 @@ EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all", "bandai_inference_
                                       "bandai_inference_sparse100_iter400_relative",
                                       "bandai_inference_all_sparse100_iter400_relative",
                                       "bandai_inference_all_sparse100_iter400_starts3_relative",
-                                      "bandai_inference_all_relative"),
+                                      "bandai_inference_all_relative",
+                                      "bandai_inference_all_sparse100_iter400_content_factor"),
                  "infer_speed": ("device_timings", "device_timings_cpu")}
 
 

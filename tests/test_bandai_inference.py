@@ -93,6 +93,7 @@ def test_quick_all_contents_run_pools_the_contents(all_contents_quick):
     assert res["name"] == "bandai_inference_all"
     assert {c.split("_")[1] for c in res["clips"]} == {"walk-left", "bow"}
     assert len(r["trials"]) == 8 and "calibrated" not in r  # the labels' calibration only
+    assert r["true_level_unseen_rate"] == 0.0  # no content factor: every emotion was seen
     assert [h["metric"].strip()[:6] for h in res["headline"]] == \
         ["H-GPDM", "label ", "label ", "affect", "affect", "relati", "mean-p", "second"]
 
@@ -116,6 +117,20 @@ def test_quick_sparse_relative_run_fits_that_model(bandai_root, all_contents_qui
     assert not np.allclose(P, Q)
 
 
+@pytest.mark.slow
+def test_quick_content_factor_run_flags_every_held_out_emotion(bandai_root):
+    res = bandai_inference.run(True, root=bandai_root, all_contents=True, inducing=6,
+                               content_factor=True)
+    assert res["name"] == "bandai_inference_all_sparse6_content_factor"
+    assert res["spec"]["interaction_factors"] == res["spec"]["dynamics_factors"] == \
+        ["content", "emotion"]
+    r = res["result"]
+    # leave-one-clip-out takes the held-out clip's (content, emotion) cell out of training
+    assert r["true_level_unseen_rate"] == 1.0
+    for t in r["trials"]:
+        assert t["unseen_levels"][t["true"]] == ["interaction", "dynamics"]
+
+
 def test_result_names_say_the_options():
     assert bandai_inference.result_name() == "bandai_inference"
     assert bandai_inference.result_name(True, 0.02, 3, 100) == \
@@ -124,12 +139,20 @@ def test_result_names_say_the_options():
     assert bandai_inference.result_name(True, inducing=100, projection_iter=400,
                                         relative_to="content") == \
         "bandai_inference_all_sparse100_iter400_relative"
+    assert bandai_inference.result_name(True, inducing=100, projection_iter=400,
+                                        content_factor=True) == \
+        "bandai_inference_all_sparse100_iter400_content_factor"
 
 
 def test_inducing_below_two_is_refused(capsys):
     with pytest.raises(SystemExit):
         bandai_inference.main(["--inducing", "1"])
     assert "--inducing must be at least 2" in capsys.readouterr().err
+    for argv in (["--content-factor"], ["--all-contents", "--content-factor", "--relative-to",
+                                        "content"]):
+        with pytest.raises(SystemExit):
+            bandai_inference.main(argv)
+        assert "--content-factor needs --all-contents" in capsys.readouterr().err
 
 
 def test_baselines_alone_on_both_sets_of_folds(bandai_root):
