@@ -381,7 +381,7 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
 
 def rescore(all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1,
             inducing: int | None = None, projection_iter: int | None = None,
-            relative_to: str | None = None) -> int:
+            relative_to: str | None = None, content_factor: bool = False) -> int:
     """Summarise a stored result's labels again from its per-clip rows and rewrite it; the
     folds, timings and machine stay those of the run that produced them (``rescored_utc``
     says when the summaries were recomputed)."""
@@ -391,7 +391,7 @@ def rescore(all_contents: bool = False, start_jitter: float = 0.0, level_starts:
     from bayesmotion.evaluation.evaluate import score_labels
 
     name = result_name(all_contents, start_jitter, level_starts, inducing, projection_iter,
-                       relative_to)
+                       relative_to, content_factor)
     path = RESULTS / f"{name}.json"
     stored = json.loads(path.read_text())
     res = stored["result"]
@@ -456,16 +456,16 @@ def main(argv=None) -> int:
         for row in res["headline"]:
             print(f"{row['metric']}: {row['value']:.1f}%  ({row['note']})")
         return 0
-    if a.content_factor and (not a.all_contents or a.relative_to or a.rescore):
+    if a.content_factor and (not a.all_contents or a.relative_to or a.baselines_only):
         ap.error("--content-factor needs --all-contents and neither --relative-to (the "
-                 "content cannot be both) nor --rescore")
+                 "content cannot be both) nor --baselines-only")
     if a.inducing is not None and a.inducing < 2:
         ap.error(f"--inducing must be at least 2, got {a.inducing}")
     if a.projection_iter is not None and a.projection_iter < 1:
         ap.error(f"--projection-iter must be at least 1, got {a.projection_iter}")
     if a.rescore:
         return rescore(a.all_contents, a.start_jitter, a.level_starts, a.inducing,
-                       a.projection_iter, a.relative_to)
+                       a.projection_iter, a.relative_to, a.content_factor)
     res = run(a.quick, a.root, a.pose_space, a.all_contents, a.start_jitter, a.level_starts,
               a.inducing, a.projection_iter, a.relative_to, a.content_factor)
     write_json(RESULTS / f"{res['name']}.json", {**res, "status": "ok",

@@ -100,7 +100,7 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     assert main(["infer", str(model), *clips, "--json", "--likelihood-power", "0.5"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["likelihood_power"] == 0.5 and out["label"] in out["levels"]
-    assert out["unseen_levels"] == {}  # both emotions were seen with couple c1
+    assert out["unseen_levels"] == {}  # carried; one couple, both emotions in training
     assert "likelihood_power" in one_line_error(
         capsys, ["infer", str(model), *clips, "--likelihood-power", "0"])
     assert out["emotion_starts"] == "vertices"  # the default

@@ -89,6 +89,7 @@ def test_infer_many_answers_as_infer_emotion_and_resumes(tiny_model, clips, clie
                                    atol=1e-6)
         np.testing.assert_allclose([r[f"mean_{lv}"] for lv in levels], ep.mean, atol=1e-6)
         assert r["out_of_distribution"] == ep.out_of_distribution
+        assert r["unseen_levels"] == "" and ep.info["unseen_levels"] == {}
     on_disk = read_table(table)
     assert sorted(r["clip"] for r in on_disk) == ["broken", "t0", "t1", "t2"]
     # the model travelled once and each worker loaded it once

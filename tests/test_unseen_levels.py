@@ -60,7 +60,8 @@ def test_infer_emotion_flags_a_level_unseen_with_the_given_couple(missing_cell_m
                 if t.labels["couple"] == "c2" and t.labels["emotion"] == "happy")
     kw = {"n_steps": 30, "n_walkers": 8, "max_iter": 30}
     with pytest.warns(UnseenStyleWarning, match=r"emotion 'sad' \(interaction and dynamics\)"
-                                                r".*couple='c2'"):
+                                                r" together with the given styles "
+                                                r"\(couple='c2'\).*without the couple style"):
         ep = bm.infer_emotion(model, clip, couple="c2", **kw)
     assert ep.info["unseen_levels"] == {"sad": ["interaction", "dynamics"]}
     assert "never seen with the given styles: sad" in str(ep)
@@ -70,3 +71,26 @@ def test_infer_emotion_flags_a_level_unseen_with_the_given_couple(missing_cell_m
         ep = bm.infer_emotion(model, clip, couple="c1", **kw)
     assert ep.info["unseen_levels"] == {}
     assert "never seen" not in str(ep)
+
+
+def test_the_warning_says_what_is_missing_and_what_to_do():
+    from bayesmotion.emotion.infer import _unseen_message
+
+    m = _fake([(0, 0), (0, 1), (0, 2), (1, 0), (1, 1)])
+    m.params = {}
+    c2 = {"couple": np.array([0.0, 1.0])}
+    text = _unseen_message(m, unseen_levels(m, c2), c2)
+    assert "emotion 'sad' (interaction and dynamics) together with the given styles " \
+           "(couple='c2')" in text
+    assert "judged by the GP prior" in text and "without the couple style factor" in text
+    # a level no trial has at all: no factor to drop would help
+    m = _fake([(0, 0), (1, 1)])
+    m.params = {}
+    text = _unseen_message(m, unseen_levels(m, {}), {})
+    assert "given styles" not in text and "without the" not in text
+    assert "No training trial has emotion 'sad' at all" in text
+    # learned style vectors borrow across cells
+    m = _fake([(0, 0), (0, 1), (0, 2), (1, 0), (1, 1)])
+    m.params = {"style:emotion": np.zeros((3, 2))}
+    assert "through the learned style vectors" in _unseen_message(
+        m, unseen_levels(m, c2), c2)

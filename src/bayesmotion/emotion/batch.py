@@ -51,7 +51,8 @@ from bayesmotion.model.distributed import check_workers, dask_client, model_byte
 from bayesmotion.validate import check_pad_to, check_projection_starts
 
 FIXED = ("clip", "files", "label", "label_set_90")
-TAIL = ("out_of_distribution", "ood_score", "in_distribution_weight", "n_frames", "seconds",
+TAIL = ("out_of_distribution", "ood_score", "in_distribution_weight", "unseen_levels",
+        "n_frames", "seconds",
         "finished", "worker", "error")
 _ACTOR_FILE = re.compile(r"(?P<clip>.+)_actor(?P<actor>\d+)$")
 
@@ -119,7 +120,7 @@ def _named(clips, n_actors: int) -> dict[str, tuple[str, ...]]:
 def infer_row(model, name: str, paths: Sequence[str], kwargs: dict) -> dict:
     """One clip's row of the table (an ``error`` row instead of raising)."""
     from bayesmotion.emotion.infer import infer_emotion
-    from bayesmotion.emotion.ood import OutOfDistributionWarning
+    from bayesmotion.emotion.ood import OutOfDistributionWarning, UnseenStyleWarning
 
     levels = list(model.levels["emotion"])
     row = dict.fromkeys(columns(levels), "")
@@ -129,6 +130,7 @@ def infer_row(model, name: str, paths: Sequence[str], kwargs: dict) -> dict:
     try:
         with warnings.catch_warnings():  # the flag is in the row
             warnings.simplefilter("ignore", OutOfDistributionWarning)
+            warnings.simplefilter("ignore", UnseenStyleWarning)
             ep = infer_emotion(model, list(paths) if len(paths) > 1 else paths[0], **kwargs)
     except Exception as e:  # noqa: BLE001 -- a failing clip is reported in its row
         row.update(error=f"{type(e).__name__}: {' '.join(str(e).split())}",
@@ -138,6 +140,8 @@ def infer_row(model, name: str, paths: Sequence[str], kwargs: dict) -> dict:
                out_of_distribution=bool(ep.out_of_distribution),
                ood_score=float(ep.info["ood"]["score"]),
                in_distribution_weight=ep.info.get("in_distribution_weight", ""),
+               unseen_levels=";".join(f"{lv}:{'+'.join(ls)}"
+                                      for lv, ls in ep.info["unseen_levels"].items()),
                n_frames=int(ep.info["n_frames"]), seconds=time.perf_counter() - t,
                finished=time.time())
     for lv, p, m in zip(levels, ep.probabilities, ep.mean, strict=True):

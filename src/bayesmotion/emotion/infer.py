@@ -190,8 +190,9 @@ def unseen_levels(model, fixed: dict) -> dict[str, list[str]]:
 
     With one-hot styles a layer's kernel is zero between different style cells, so a level
     whose cell (with the given styles) holds no training frame is predicted by that layer's
-    GP prior alone: it is then judged by how well the prior explains the clip, against
-    levels judged by fitted mappings. A clip of an action seen in training only under other
+    GP prior (in the dynamics layer, around the autoregression all cells share): it is then
+    judged by how well the prior explains the clip, against levels judged by fitted
+    mappings. A clip of an action seen in training only under other
     emotions (``HGPDM(interaction_factors=("content", "emotion"))``, a held-out clip in
     leave-one-clip-out) meets exactly this.
     """
@@ -217,14 +218,25 @@ def _unseen_message(model, unseen: dict, fixed: dict) -> str:
                       if np.count_nonzero(v) == 1 else f"{f}={np.round(v, 3).tolist()}"
                       for f, v in fixed.items() if len(model.levels[f]) > 1)
     levels = ", ".join(f"{lv!r} ({' and '.join(ls)})" for lv, ls in unseen.items())
-    learned = any(STYLE_PREFIX + f in model.params for f in model.spec.factors)
+    factors = {f for f in (*model.spec.interaction_factors, *model.spec.dynamics_factors)
+               if f != "emotion"}
+    learned = any(STYLE_PREFIX + f in model.params for f in (*factors, "emotion"))
     how = ("their predictions borrow from other cells only through the learned style vectors"
-           if learned else "with one-hot styles they are judged by the GP prior alone, so the "
-                           "levels the training data cover are favoured")
-    return (f"no training trial had emotion {levels} together with the given styles "
-            f"({given}): {how} (EmotionPosterior.info['unseen_levels']). A model that reads "
-            f"the clip relative to that label, e.g. HGPDM(relative_to='content') instead of "
-            f"a content style factor, compares every emotion on training data")
+           if learned else "with one-hot styles they are judged by the GP prior (around the "
+                           "shared autoregression in the dynamics), so the levels the training "
+                           "data cover are favoured")
+    E = np.asarray(model.data.onehot["emotion"]) > 0
+    absent = [lv for k, lv in enumerate(model.levels["emotion"]) if not E[:, k].any()]
+    others = sorted({f for f in fixed if f in factors and len(model.levels[f]) > 1})
+    also = f" together with the given styles ({given})" if given else ""
+    instead = (f" A model without the {' and '.join(others)} style factor (for a label that "
+               f"sets the poses' baseline, such as an action: HGPDM(pose_space='affective', "
+               f"relative_to=...)) compares every emotion on training data"
+               if others and len(absent) < len(unseen) else "")
+    if absent:
+        instead += f" No training trial has emotion {', '.join(map(repr, absent))} at all."
+    return (f"no training trial had emotion {levels}{also}: {how} "
+            f"(EmotionPosterior.info['unseen_levels']).{instead}")
 
 
 def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=None,
