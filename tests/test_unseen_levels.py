@@ -18,7 +18,8 @@ def _fake(cells, interaction=("couple", "emotion"), dynamics=("couple", "emotion
     emotion = np.eye(3)[[e for _, e in cells]]
     return SimpleNamespace(
         data=SimpleNamespace(onehot={"couple": couple, "emotion": emotion}),
-        spec=SimpleNamespace(interaction_factors=interaction, dynamics_factors=dynamics),
+        spec=SimpleNamespace(interaction_factors=interaction, dynamics_factors=dynamics,
+                             dynamics_linear="stable"),
         levels={"couple": ("c1", "c2"), "emotion": ("angry", "happy", "sad")})
 
 

@@ -190,7 +190,8 @@ def unseen_levels(model, fixed: dict) -> dict[str, list[str]]:
 
     With one-hot styles a layer's kernel is zero between different style cells, so a level
     whose cell (with the given styles) holds no training frame is predicted by that layer's
-    GP prior (in the dynamics layer, around the autoregression all cells share): it is then
+    GP prior (in the dynamics layer of ``dynamics_linear="stable"``, the default, around the
+    autoregression all cells share): it is then
     judged by how well the prior explains the clip, against levels judged by fitted
     mappings. A clip of an action seen in training only under other
     emotions (``HGPDM(interaction_factors=("content", "emotion"))``, a held-out clip in
@@ -221,10 +222,11 @@ def _unseen_message(model, unseen: dict, fixed: dict) -> str:
     factors = {f for f in (*model.spec.interaction_factors, *model.spec.dynamics_factors)
                if f != "emotion"}
     learned = any(STYLE_PREFIX + f in model.params for f in (*factors, "emotion"))
+    shared = (" (around the shared autoregression in the dynamics)"
+              if model.spec.dynamics_linear == "stable" else "")
     how = ("their predictions borrow from other cells only through the learned style vectors"
-           if learned else "with one-hot styles they are judged by the GP prior (around the "
-                           "shared autoregression in the dynamics), so the levels the training "
-                           "data cover are favoured")
+           if learned else f"with one-hot styles they are judged by the GP prior{shared}, so "
+                           f"the levels the training data cover are favoured")
     E = np.asarray(model.data.onehot["emotion"]) > 0
     absent = [lv for k, lv in enumerate(model.levels["emotion"]) if not E[:, k].any()]
     others = sorted({f for f in fixed if f in factors and len(model.levels[f]) > 1})
