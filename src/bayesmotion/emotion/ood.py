@@ -87,8 +87,8 @@ class OutOfDistributionWarning(UserWarning):
 class UnseenStyleWarning(UserWarning):
     """Some emotion level was never seen in training together with the clip's given styles
     (``info["unseen_levels"]``): with one-hot styles such a level is judged by its layers'
-    GP prior (around the shared autoregression in the dynamics), so its evidence is not
-    comparable with the other levels'."""
+    GP prior (with the default stable dynamics, around their shared autoregression), so its
+    evidence is not comparable with the other levels'."""
 
 
 def held_out_z2(fit: LayerFit, groups: np.ndarray) -> np.ndarray:

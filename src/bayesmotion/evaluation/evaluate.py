@@ -390,7 +390,7 @@ def leave_one_out(dataset: MotionDataset, full_model=None, *, spec=None, refit_i
         "label_set_coverage": float(np.mean([r["true"] in r["label_set"] for r in rows])),
         "out_of_distribution_rate": float(np.mean([r["out_of_distribution"] for r in rows])),
         # folds whose true emotion no training trial had with the held-out trial's other
-        # labels (infer_emotion's unseen_levels): judged by the GP prior alone there
+        # labels (infer_emotion's unseen_levels): judged by its layers' GP prior there
         "true_level_unseen_rate": float(np.mean([r["true"] in r["unseen_levels"]
                                                  for r in rows])),
         "interval_coverage": float(np.mean([r["intervals_cover"] for r in rows])),
