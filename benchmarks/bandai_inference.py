@@ -5,6 +5,7 @@
                                           [--level-starts K] [--rescore]
                                           [--inducing M] [--projection-iter N]
                                           [--relative-to LABEL] [--content-factor]
+                                          [--fit-iter N] [--refit-iter N]
                                           [--baselines-only]
 
 The one-actor H-GPDM (emotion in the interaction and dynamics layers) is MAP-fitted on the 16
@@ -34,6 +35,8 @@ contents the walk model has never seen, are then flagged and answered with the p
 beside the emotion (``results/bandai_inference[...]_content_factor.json``): every held-out
 clip's own emotion is then a style cell no training clip has (``infer_emotion``'s
 ``info["unseen_levels"]``; ``result["true_level_unseen_rate"]``).
+``--fit-iter N`` and ``--refit-iter N`` set the full fit's and the fold refits' L-BFGS
+iterations (300 and 100 by default; ``results/bandai_inference[...]_fitN_R.json``).
 ``--baselines-only`` runs the baselines alone on the walks' and the 40 clips' folds, in
 seconds (``results/bandai_baselines.json``).
 Targets (issue: honest inference): accuracy >= 85% on the walks (>= 75% on all 40 clips,
@@ -308,21 +311,27 @@ def baselines_only(root: str | Path | None = None) -> dict:
 def result_name(all_contents: bool = False, start_jitter: float = 0.0,
                 level_starts: int = 1, inducing: int | None = None,
                 projection_iter: int | None = None, relative_to: str | None = None,
-                content_factor: bool = False) -> str:
+                content_factor: bool = False, fit_iter: int | None = None,
+                refit_iter: int | None = None) -> str:
     """The result file's name for these options."""
+    fits = ""
+    if fit_iter or refit_iter:
+        cfg = ALL if all_contents else FULL
+        fits = f"_fit{fit_iter or cfg['max_iter']}_{refit_iter or cfg['refit_iter']}"
     return (NAME + ("_all" if all_contents else "")
             + (f"_sparse{inducing}" if inducing else "")
             + (f"_iter{projection_iter}" if projection_iter else "")
             + (f"_starts{level_starts}" if level_starts > 1
                else "_jittered" if start_jitter else "")
             + ("_relative" if relative_to else "")
-            + ("_content_factor" if content_factor else ""))
+            + ("_content_factor" if content_factor else "") + fits)
 
 
 def run(quick: bool, root: str | Path | None = None, pose_space: str | None = None,
         all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1,
         inducing: int | None = None, projection_iter: int | None = None,
-        relative_to: str | None = None, content_factor: bool = False) -> dict:
+        relative_to: str | None = None, content_factor: bool = False,
+        fit_iter: int | None = None, refit_iter: int | None = None) -> dict:
     import bayesmotion  # noqa: F401  (float64 on)
     from bayesmotion.evaluation.evaluate import format_confusion, leave_one_out
     from bayesmotion.model.data import encode_trial
@@ -342,9 +351,15 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
     cfg["rest_frames"] = cfg["pose_space"] == "angles"  # joint angles only (see module doc)
     cfg["relative_to"] = relative_to
     cfg["content_factor"] = bool(content_factor)
+    if fit_iter:
+        cfg["max_iter"] = int(fit_iter)
+    if refit_iter:
+        cfg["refit_iter"] = int(refit_iter)
     root = Path(root) if root is not None else DATA_ROOT
     name = result_name(all_contents, start_jitter, level_starts, cfg["inducing"],
-                       projection_iter, relative_to, content_factor)
+                       projection_iter, relative_to, content_factor,
+                       *((cfg["max_iter"], cfg["refit_iter"]) if fit_iter or refit_iter
+                         else (None, None)))
     base = {"name": name, "mode": "quick" if quick else "full", "settings": dict(cfg)}
     if not bandai_present(root):
         return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
@@ -381,7 +396,8 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
 
 def rescore(all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1,
             inducing: int | None = None, projection_iter: int | None = None,
-            relative_to: str | None = None, content_factor: bool = False) -> int:
+            relative_to: str | None = None, content_factor: bool = False,
+            fit_iter: int | None = None, refit_iter: int | None = None) -> int:
     """Summarise a stored result's labels again from its per-clip rows and rewrite it; the
     folds, timings and machine stay those of the run that produced them (``rescored_utc``
     says when the summaries were recomputed)."""
@@ -391,7 +407,7 @@ def rescore(all_contents: bool = False, start_jitter: float = 0.0, level_starts:
     from bayesmotion.evaluation.evaluate import score_labels
 
     name = result_name(all_contents, start_jitter, level_starts, inducing, projection_iter,
-                       relative_to, content_factor)
+                       relative_to, content_factor, fit_iter, refit_iter)
     path = RESULTS / f"{name}.json"
     stored = json.loads(path.read_text())
     res = stored["result"]
@@ -437,6 +453,11 @@ def main(argv=None) -> int:
                     help="with --all-contents: the content a style factor of both layers "
                          "beside the emotion; writes results/bandai_inference[...]"
                          "_content_factor.json")
+    ap.add_argument("--fit-iter", type=int, default=None, metavar="N",
+                    help="L-BFGS iterations of the full fit (default 300); with --refit-iter, "
+                         "writes results/bandai_inference[...]_fitN_R.json")
+    ap.add_argument("--refit-iter", type=int, default=None, metavar="N",
+                    help="L-BFGS iterations of each fold's warm-started refit (default 100)")
     ap.add_argument("--baselines-only", action="store_true",
                     help="the baselines alone on the walks' and the 40 clips' folds (seconds): "
                          "writes results/bandai_baselines.json")
@@ -463,11 +484,16 @@ def main(argv=None) -> int:
         ap.error(f"--inducing must be at least 2, got {a.inducing}")
     if a.projection_iter is not None and a.projection_iter < 1:
         ap.error(f"--projection-iter must be at least 1, got {a.projection_iter}")
+    for flag, value in (("--fit-iter", a.fit_iter), ("--refit-iter", a.refit_iter)):
+        if value is not None and value < 1:
+            ap.error(f"{flag} must be at least 1, got {value}")
     if a.rescore:
         return rescore(a.all_contents, a.start_jitter, a.level_starts, a.inducing,
-                       a.projection_iter, a.relative_to, a.content_factor)
+                       a.projection_iter, a.relative_to, a.content_factor, a.fit_iter,
+                       a.refit_iter)
     res = run(a.quick, a.root, a.pose_space, a.all_contents, a.start_jitter, a.level_starts,
-              a.inducing, a.projection_iter, a.relative_to, a.content_factor)
+              a.inducing, a.projection_iter, a.relative_to, a.content_factor, a.fit_iter,
+              a.refit_iter)
     write_json(RESULTS / f"{res['name']}.json", {**res, "status": "ok",
                                                  "machine": machine_info()})
     print(res.get("skipped") or res["confusion_table"])

@@ -120,8 +120,10 @@ def test_quick_sparse_relative_run_fits_that_model(bandai_root, all_contents_qui
 @pytest.mark.slow
 def test_quick_content_factor_run_flags_every_held_out_emotion(bandai_root):
     res = bandai_inference.run(True, root=bandai_root, all_contents=True, inducing=6,
-                               content_factor=True)
-    assert res["name"] == "bandai_inference_all_sparse6_content_factor"
+                               content_factor=True, fit_iter=25, refit_iter=4)
+    assert res["name"] == "bandai_inference_all_sparse6_content_factor_fit25_4"
+    assert (res["settings"]["max_iter"], res["settings"]["refit_iter"]) == (25, 4)
+    assert res["full_fit"]["iterations"] <= 25
     assert res["spec"]["interaction_factors"] == res["spec"]["dynamics_factors"] == \
         ["content", "emotion"]
     r = res["result"]
@@ -142,6 +144,20 @@ def test_result_names_say_the_options():
     assert bandai_inference.result_name(True, inducing=100, projection_iter=400,
                                         content_factor=True) == \
         "bandai_inference_all_sparse100_iter400_content_factor"
+    # the fit lengths: the one not given keeps its default (300 full, 100 per fold)
+    assert bandai_inference.result_name(True, inducing=100, projection_iter=400,
+                                        relative_to="content", fit_iter=1500,
+                                        refit_iter=300) == \
+        "bandai_inference_all_sparse100_iter400_relative_fit1500_300"
+    assert bandai_inference.result_name(fit_iter=600) == "bandai_inference_fit600_100"
+    assert bandai_inference.result_name(refit_iter=50) == "bandai_inference_fit300_50"
+
+
+def test_fit_lengths_below_one_are_refused(capsys):
+    for flag in ("--fit-iter", "--refit-iter"):
+        with pytest.raises(SystemExit):
+            bandai_inference.main([flag, "0"])
+        assert f"{flag} must be at least 1, got 0" in capsys.readouterr().err
 
 
 def test_inducing_below_two_is_refused(capsys):
