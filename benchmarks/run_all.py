@@ -233,7 +233,9 @@ def render_docs(page: str, results: dict[str, dict]) -> str:
 # clips of ``bandai_inference.py --all-contents``, the walks from jittered level starts and from
 # three starts per level, the baselines alone on both sets of folds (``--baselines-only``)
 # (``--start-jitter 0.02``), the sparse model with capped projections, plain and relative to each
-# clip's content (``--inducing 100 --projection-iter 400 [--relative-to content]``), and
+# clip's content (``--inducing 100 --projection-iter 400 [--relative-to content]``), the relative
+# model with 50 inducing points and with longer fits (``--inducing 50``; ``--fit-iter 1500
+# --refit-iter 300``), and
 # ``device_timings.py --merge`` of a lent
 # GPU's part with this CPU's (run by hand: the suite has no GPU), and this CPU's part alone
 # (``device_timings.py``, with the newer infer_emotion variants)
@@ -246,7 +248,9 @@ EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all", "bandai_inference_
                                       "bandai_inference_all_sparse100_iter400_relative",
                                       "bandai_inference_all_sparse100_iter400_starts3_relative",
                                       "bandai_inference_all_relative",
-                                      "bandai_inference_all_sparse100_iter400_content_factor"),
+                                      "bandai_inference_all_sparse100_iter400_content_factor",
+                                      "bandai_inference_all_sparse50_iter400_relative",
+                                      "bandai_inference_all_sparse100_iter400_relative_fit1500_300"),
                  "infer_speed": ("device_timings", "device_timings_cpu")}
 
 
