@@ -454,8 +454,8 @@ def main(argv=None) -> int:
                          "beside the emotion; writes results/bandai_inference[...]"
                          "_content_factor.json")
     ap.add_argument("--fit-iter", type=int, default=None, metavar="N",
-                    help="L-BFGS iterations of the full fit (default 300); with --refit-iter, "
-                         "writes results/bandai_inference[...]_fitN_R.json")
+                    help="L-BFGS iterations of the full fit (default 300); this or "
+                         "--refit-iter R writes results/bandai_inference[...]_fitN_R.json")
     ap.add_argument("--refit-iter", type=int, default=None, metavar="N",
                     help="L-BFGS iterations of each fold's warm-started refit (default 100)")
     ap.add_argument("--baselines-only", action="store_true",
