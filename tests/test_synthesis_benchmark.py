@@ -158,3 +158,50 @@ def test_transition_row_measures_the_rollout_it_names(tiny_model):
                                          "summary": s})
     assert head["value"] == 1.0 and head["met"] is False
     assert s["p_target_last_window"]["worst"] == min(0.1, row["p_target_last_window"])
+
+
+def _handshakes(ratios: dict) -> dict:
+    rows = {e: {"min_hand_distance": 6.7, "latent_range": 1.2, "motion_last_over_first": v,
+                "finite": True} if v is not None else {"error": "diverged"}
+            for e, v in ratios.items()}
+    return {"fit": {"iterations": 10, "converged": False}, "real_min_hand_distance": 6.6,
+            "emotions": rows}
+
+
+def test_handshakes_must_come_to_rest_in_every_emotion():
+    rows = synthesis.headline_rows({}, _handshakes({"neutral": 0.0, "happy": 0.72,
+                                                    "angry": 1.01, "sad": 0.01}), 1000)
+    rest = rows[-1]
+    assert rest["metric"].startswith("built-in handshakes: emotions whose 1000-frame rollout")
+    assert (rest["value"], rest["unit"], rest["met"]) == (2, "of 4", False)
+    assert rest["note"].startswith("still moving: happy 0.72, angry 1.01;")
+    rows = synthesis.headline_rows({}, _handshakes({"neutral": 0.0, "sad": 0.05}), 1000)
+    assert (rows[-1]["value"], rows[-1]["met"]) == (2, True)  # the limit itself is at rest
+    assert rows[-1]["note"].startswith("still moving: none;")
+    # an emotion whose rollout failed is neither at rest nor a pass
+    rows = synthesis.headline_rows({}, _handshakes({"neutral": 0.0, "sad": None}), 1000)
+    assert (rows[-1]["value"], rows[-1]["unit"], rows[-1]["met"]) == (1, "of 2", False)
+    assert "failed: sad" in rows[-1]["note"]
+    # NaN motion (a rollout that stopped being finite) is not at rest either
+    rows = synthesis.headline_rows({}, _handshakes({"neutral": float("nan")}), 1000)
+    assert (rows[-1]["value"], rows[-1]["met"]) == (0, False)
+
+
+def test_rescore_rebuilds_the_headline_and_keeps_the_measurements(tmp_path):
+    stored = json.loads((synthesis.RESULTS / "synthesis.json").read_text())
+    path = tmp_path / "synthesis.json"
+    path.write_text(json.dumps(stored))
+    synthesis.main(["--rescore", "--out", str(path)])
+    new = json.loads(path.read_text())
+    for key in ("groups", "handshakes", "settings", "machine", "timing_s"):
+        assert new[key] == stored[key]
+    old_rows = [r for r in stored["headline"] if "comes to rest" not in r["metric"]]
+    assert new["headline"][:len(old_rows)] == old_rows  # the other rows are rebuilt as run
+    ratios = [r["motion_last_over_first"] for r in stored["handshakes"]["emotions"].values()]
+    rest = new["headline"][-1]
+    assert rest["value"] == sum(v <= 0.05 for v in ratios)
+    assert rest["met"] == all(v <= 0.05 for v in ratios)
+    assert "rescored_utc" in new
+    (tmp_path / "skipped.json").write_text(json.dumps({"status": "skipped"}))
+    with pytest.raises(SystemExit, match="no measurements to rescore"):
+        synthesis.rescore(tmp_path / "skipped.json")
