@@ -314,10 +314,11 @@ def result_name(all_contents: bool = False, start_jitter: float = 0.0,
                 content_factor: bool = False, fit_iter: int | None = None,
                 refit_iter: int | None = None) -> str:
     """The result file's name for these options."""
-    fits = ""
-    if fit_iter or refit_iter:
-        cfg = ALL if all_contents else FULL
-        fits = f"_fit{fit_iter or cfg['max_iter']}_{refit_iter or cfg['refit_iter']}"
+    cfg = ALL if all_contents else FULL
+    lengths = (fit_iter or cfg["max_iter"], refit_iter or cfg["refit_iter"])
+    # the full settings' own lengths name no file of their own (the default run's)
+    fits = ("" if lengths == (cfg["max_iter"], cfg["refit_iter"])
+            else f"_fit{lengths[0]}_{lengths[1]}")
     return (NAME + ("_all" if all_contents else "")
             + (f"_sparse{inducing}" if inducing else "")
             + (f"_iter{projection_iter}" if projection_iter else "")

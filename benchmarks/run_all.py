@@ -234,8 +234,9 @@ def render_docs(page: str, results: dict[str, dict]) -> str:
 # three starts per level, the baselines alone on both sets of folds (``--baselines-only``)
 # (``--start-jitter 0.02``), the sparse model with capped projections, plain and relative to each
 # clip's content (``--inducing 100 --projection-iter 400 [--relative-to content]``), the relative
-# model with 50 inducing points and with longer fits (``--inducing 50``; ``--fit-iter 1500
-# --refit-iter 300``), and
+# model on the 40 clips with 50 inducing points and with longer fits (``--all-contents
+# --projection-iter 400 --relative-to content`` with ``--inducing 50``, or with ``--inducing 100
+# --fit-iter 1500 --refit-iter 300``), and
 # ``device_timings.py --merge`` of a lent
 # GPU's part with this CPU's (run by hand: the suite has no GPU), and this CPU's part alone
 # (``device_timings.py``, with the newer infer_emotion variants)

@@ -480,6 +480,10 @@ def load_clips(root: Path, cfg: Settings) -> MotionDataset:
                        fps=cfg.fps)
 
 
+def _ratio(v) -> str:
+    return "n/a" if v is None or not np.isfinite(v) else f"{v:.2f}"
+
+
 def headline_rows(groups: dict, hs: dict, long_frames: int) -> list[dict]:
     """The headline of a run: one row per group (its targets as judged in ``targets_met``)
     and the built-in handshakes' two rows (hands meet; long rollouts come to rest)."""
@@ -498,30 +502,34 @@ def headline_rows(groups: dict, hs: dict, long_frames: int) -> list[dict]:
             f"{g['long_worst']['judge_p_last200'] or float('nan'):.2f}; fit "
             f"{g['fit']['iterations']} iterations, converged {g['fit']['converged']}"))
     ok = {e: r for e, r in hs["emotions"].items() if "error" not in r}
+    limit = TARGETS["rest_motion_max"]
+    # a ratio stored as null (not finite when measured: a rollout that never moved or blew up)
+    # is not at rest
+    ratio = {e: r["motion_last_over_first"] for e, r in ok.items()}
+    still = {e: v for e, v in ratio.items() if v is None or not v <= limit}
+    failed = sorted(set(hs["emotions"]) - set(ok))
+    rest = headline(
+        f"built-in handshakes: emotions whose {long_frames}-frame rollout comes to rest",
+        len(ok) - len(still), f"of {len(hs['emotions'])}",
+        f"all (motion in the last 200 frames <= {limit:g} x the first 200's)",
+        not still and not failed,
+        "still moving: " + (", ".join(f"{e} {_ratio(v)}" for e, v in still.items()) or "none")
+        + (f"; failed: {', '.join(failed)}" if failed else "")
+        + "; every training trial ends in motion (docs/model.md, long rollouts)")
     if not ok:
-        return rows
+        return [*rows, rest]
     worst = max(r["min_hand_distance"] for r in ok.values())
-    ratios = [r["motion_last_over_first"] for r in ok.values()]
+    ratios = [v for v in ratio.values() if v is not None and np.isfinite(v)]
+    span = f"{min(ratios):.2f}-{max(ratios):.2f}" if ratios else "n/a"
     rows.append(headline(
         "built-in handshakes: largest per-emotion minimum right-hand distance", worst, "",
         f"< 1.5 x real {hs['real_min_hand_distance']:.2f}",
         worst < 1.5 * hs["real_min_hand_distance"] and len(ok) == len(hs["emotions"]),
         f"{long_frames}-frame rollouts: latent range <= "
         f"{max(r['latent_range'] for r in ok.values()):.2f}x, motion last/first 200 frames "
-        f"{min(ratios):.2f}-{max(ratios):.2f}; fit "
+        f"{span}; fit "
         f"{hs['fit']['iterations']} iterations, converged {hs['fit']['converged']}"))
-    limit = TARGETS["rest_motion_max"]
-    still = {e: r["motion_last_over_first"] for e, r in ok.items()
-             if not r["motion_last_over_first"] <= limit}
-    rows.append(headline(
-        f"built-in handshakes: emotions whose {long_frames}-frame rollout comes to rest",
-        len(ok) - len(still), f"of {len(hs['emotions'])}",
-        f"all (motion in the last 200 frames <= {limit:g} x the first 200's)",
-        not still and len(ok) == len(hs["emotions"]),
-        "still moving: " + (", ".join(f"{e} {v:.2f}" for e, v in still.items()) or "none")
-        + (f"; failed: {', '.join(sorted(set(hs['emotions']) - set(ok)))}"
-           if len(ok) < len(hs["emotions"]) else "")
-        + "; every training trial ends in motion (docs/model.md, long rollouts)"))
+    rows.append(rest)
     return rows
 
 
@@ -536,7 +544,7 @@ def rescore(path: str | Path) -> dict:
     if stored.get("status") != "ok":
         raise SystemExit(f"{path} holds no measurements to rescore (status "
                          f"{stored.get('status')!r})")
-    stored["targets"] = TARGETS
+    stored["targets"] = {**TARGETS, **stored.get("targets", {})}  # as judged, new ones added
     stored["headline"] = headline_rows(stored["groups"], stored["handshakes"],
                                        stored["settings"]["long_frames"])
     stored["rescored_utc"] = datetime.now(UTC).isoformat(timespec="seconds")

@@ -120,10 +120,11 @@ def test_quick_sparse_relative_run_fits_that_model(bandai_root, all_contents_qui
 @pytest.mark.slow
 def test_quick_content_factor_run_flags_every_held_out_emotion(bandai_root):
     res = bandai_inference.run(True, root=bandai_root, all_contents=True, inducing=6,
-                               content_factor=True, fit_iter=25, refit_iter=4)
-    assert res["name"] == "bandai_inference_all_sparse6_content_factor_fit25_4"
-    assert (res["settings"]["max_iter"], res["settings"]["refit_iter"]) == (25, 4)
-    assert res["full_fit"]["iterations"] <= 25
+                               content_factor=True, fit_iter=8, refit_iter=4)
+    assert res["name"] == "bandai_inference_all_sparse6_content_factor_fit8_4"
+    assert (res["settings"]["max_iter"], res["settings"]["refit_iter"]) == (8, 4)
+    # below the quick settings' own 20 and 5: the lengths given are the ones run
+    assert res["full_fit"]["iterations"] <= 8 and res["result"]["refit_iter"] == 4
     assert res["spec"]["interaction_factors"] == res["spec"]["dynamics_factors"] == \
         ["content", "emotion"]
     r = res["result"]
@@ -144,13 +145,17 @@ def test_result_names_say_the_options():
     assert bandai_inference.result_name(True, inducing=100, projection_iter=400,
                                         content_factor=True) == \
         "bandai_inference_all_sparse100_iter400_content_factor"
-    # the fit lengths: the one not given keeps its default (300 full, 100 per fold)
+    # the fit lengths: the one not given keeps the full settings' (300 full, 100 per fold),
+    # and those two name no file of their own
     assert bandai_inference.result_name(True, inducing=100, projection_iter=400,
                                         relative_to="content", fit_iter=1500,
                                         refit_iter=300) == \
         "bandai_inference_all_sparse100_iter400_relative_fit1500_300"
     assert bandai_inference.result_name(fit_iter=600) == "bandai_inference_fit600_100"
     assert bandai_inference.result_name(refit_iter=50) == "bandai_inference_fit300_50"
+    assert bandai_inference.result_name(fit_iter=300) == "bandai_inference"
+    assert bandai_inference.result_name(True, fit_iter=300, refit_iter=100) == \
+        "bandai_inference_all"
 
 
 def test_fit_lengths_below_one_are_refused(capsys):

@@ -182,9 +182,20 @@ def test_handshakes_must_come_to_rest_in_every_emotion():
     rows = synthesis.headline_rows({}, _handshakes({"neutral": 0.0, "sad": None}), 1000)
     assert (rows[-1]["value"], rows[-1]["unit"], rows[-1]["met"]) == (1, "of 2", False)
     assert "failed: sad" in rows[-1]["note"]
-    # NaN motion (a rollout that stopped being finite) is not at rest either
-    rows = synthesis.headline_rows({}, _handshakes({"neutral": float("nan")}), 1000)
-    assert (rows[-1]["value"], rows[-1]["met"]) == (0, False)
+    # a ratio that was not finite (NaN in memory, null once stored) is not at rest either
+    for bad in (float("nan"), "null"):
+        hs = _handshakes({"neutral": 0.0, "sad": bad})
+        if bad == "null":
+            hs = json.loads(json.dumps(hs).replace('"null"', "null"))
+        rows = synthesis.headline_rows({}, hs, 1000)
+        assert (rows[-1]["value"], rows[-1]["met"]) == (1, False)
+        assert rows[-1]["note"].startswith("still moving: sad n/a;")
+        assert "motion last/first 200 frames 0.00-0.00;" in rows[-2]["note"]
+    # every rollout failed: the rest row still says so
+    rows = synthesis.headline_rows({}, _handshakes({"neutral": None, "sad": None}), 1000)
+    assert len(rows) == 1
+    assert (rows[0]["value"], rows[0]["unit"], rows[0]["met"]) == (0, "of 2", False)
+    assert "failed: neutral, sad" in rows[0]["note"]
 
 
 def test_rescore_rebuilds_the_headline_and_keeps_the_measurements(tmp_path):
@@ -202,6 +213,7 @@ def test_rescore_rebuilds_the_headline_and_keeps_the_measurements(tmp_path):
     assert rest["value"] == sum(v <= 0.05 for v in ratios)
     assert rest["met"] == all(v <= 0.05 for v in ratios)
     assert "rescored_utc" in new
+    assert new["targets"] == {**synthesis.TARGETS, **stored["targets"]}  # as judged
     (tmp_path / "skipped.json").write_text(json.dumps({"status": "skipped"}))
     with pytest.raises(SystemExit, match="no measurements to rescore"):
         synthesis.rescore(tmp_path / "skipped.json")
