@@ -312,8 +312,8 @@ def result_name(all_contents: bool = False, start_jitter: float = 0.0,
                 level_starts: int = 1, inducing: int | None = None,
                 projection_iter: int | None = None, relative_to: str | None = None,
                 content_factor: bool = False, fit_iter: int | None = None,
-                refit_iter: int | None = None) -> str:
-    """The result file's name for these options."""
+                refit_iter: int | None = None, model_frames: int | None = None) -> str:
+    """The result file's name for these options (``model_frames`` 0: whole clips)."""
     cfg = ALL if all_contents else FULL
     lengths = (fit_iter or cfg["max_iter"], refit_iter or cfg["refit_iter"])
     # the full settings' own lengths name no file of their own (the default run's)
@@ -325,14 +325,24 @@ def result_name(all_contents: bool = False, start_jitter: float = 0.0,
             + (f"_starts{level_starts}" if level_starts > 1
                else "_jittered" if start_jitter else "")
             + ("_relative" if relative_to else "")
-            + ("_content_factor" if content_factor else "") + fits)
+            + ("_content_factor" if content_factor else "") + fits
+            + _frames_suffix(cfg, model_frames))
+
+
+def _frames_suffix(cfg: dict, model_frames: int | None) -> str:
+    """``_framesN`` (``_frameswhole`` for 0, whole clips) where ``model_frames`` differs from the
+    mode's own crop, which names no file of its own."""
+    if model_frames is None or model_frames == cfg["model_frames"]:
+        return ""
+    return "_frameswhole" if model_frames == 0 else f"_frames{model_frames}"
 
 
 def run(quick: bool, root: str | Path | None = None, pose_space: str | None = None,
         all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1,
         inducing: int | None = None, projection_iter: int | None = None,
         relative_to: str | None = None, content_factor: bool = False,
-        fit_iter: int | None = None, refit_iter: int | None = None) -> dict:
+        fit_iter: int | None = None, refit_iter: int | None = None,
+        model_frames: int | None = None) -> dict:
     import bayesmotion  # noqa: F401  (float64 on)
     from bayesmotion.evaluation.evaluate import format_confusion, leave_one_out
     from bayesmotion.model.data import encode_trial
@@ -356,11 +366,13 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
         cfg["max_iter"] = int(fit_iter)
     if refit_iter:
         cfg["refit_iter"] = int(refit_iter)
+    if model_frames is not None:
+        cfg["model_frames"] = None if model_frames == 0 else int(model_frames)
     root = Path(root) if root is not None else DATA_ROOT
     name = result_name(all_contents, start_jitter, level_starts, cfg["inducing"],
                        projection_iter, relative_to, content_factor,
                        *((cfg["max_iter"], cfg["refit_iter"]) if fit_iter or refit_iter
-                         else (None, None)))
+                         else (None, None)), model_frames)
     base = {"name": name, "mode": "quick" if quick else "full", "settings": dict(cfg)}
     if not bandai_present(root):
         return {**base, "skipped": f"Bandai data not found at {root}", "headline": []}
@@ -398,7 +410,8 @@ def run(quick: bool, root: str | Path | None = None, pose_space: str | None = No
 def rescore(all_contents: bool = False, start_jitter: float = 0.0, level_starts: int = 1,
             inducing: int | None = None, projection_iter: int | None = None,
             relative_to: str | None = None, content_factor: bool = False,
-            fit_iter: int | None = None, refit_iter: int | None = None) -> int:
+            fit_iter: int | None = None, refit_iter: int | None = None,
+            model_frames: int | None = None) -> int:
     """Summarise a stored result's labels again from its per-clip rows and rewrite it; the
     folds, timings and machine stay those of the run that produced them (``rescored_utc``
     says when the summaries were recomputed)."""
@@ -408,7 +421,7 @@ def rescore(all_contents: bool = False, start_jitter: float = 0.0, level_starts:
     from bayesmotion.evaluation.evaluate import score_labels
 
     name = result_name(all_contents, start_jitter, level_starts, inducing, projection_iter,
-                       relative_to, content_factor, fit_iter, refit_iter)
+                       relative_to, content_factor, fit_iter, refit_iter, model_frames)
     path = RESULTS / f"{name}.json"
     stored = json.loads(path.read_text())
     res = stored["result"]
@@ -459,6 +472,10 @@ def main(argv=None) -> int:
                          "--refit-iter R writes results/bandai_inference[...]_fitN_R.json")
     ap.add_argument("--refit-iter", type=int, default=None, metavar="N",
                     help="L-BFGS iterations of each fold's warm-started refit (default 100)")
+    ap.add_argument("--model-frames", type=int, default=None, metavar="N",
+                    help="crop every clip to its first N frames (default: 60 for the walks, 40 "
+                         "for the 40 clips); 0 keeps whole clips; any other crop writes "
+                         "results/bandai_inference[...]_framesN.json (_frameswhole for 0)")
     ap.add_argument("--baselines-only", action="store_true",
                     help="the baselines alone on the walks' and the 40 clips' folds (seconds): "
                          "writes results/bandai_baselines.json")
@@ -488,13 +505,15 @@ def main(argv=None) -> int:
     for flag, value in (("--fit-iter", a.fit_iter), ("--refit-iter", a.refit_iter)):
         if value is not None and value < 1:
             ap.error(f"{flag} must be at least 1, got {value}")
+    if a.model_frames is not None and (a.model_frames < 0 or 0 < a.model_frames < 4):
+        ap.error(f"--model-frames must be 0 (whole clips) or at least 4, got {a.model_frames}")
     if a.rescore:
         return rescore(a.all_contents, a.start_jitter, a.level_starts, a.inducing,
                        a.projection_iter, a.relative_to, a.content_factor, a.fit_iter,
-                       a.refit_iter)
+                       a.refit_iter, a.model_frames)
     res = run(a.quick, a.root, a.pose_space, a.all_contents, a.start_jitter, a.level_starts,
               a.inducing, a.projection_iter, a.relative_to, a.content_factor, a.fit_iter,
-              a.refit_iter)
+              a.refit_iter, a.model_frames)
     write_json(RESULTS / f"{res['name']}.json", {**res, "status": "ok",
                                                  "machine": machine_info()})
     print(res.get("skipped") or res["confusion_table"])

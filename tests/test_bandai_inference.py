@@ -158,6 +158,37 @@ def test_result_names_say_the_options():
         "bandai_inference_all"
 
 
+def test_result_names_say_the_crop():
+    # the mode's own crop (60 frames of the walks, 40 of the 40 clips) names no file of its own
+    assert bandai_inference.result_name(model_frames=60) == "bandai_inference"
+    assert bandai_inference.result_name(True, model_frames=40) == "bandai_inference_all"
+    assert bandai_inference.result_name(True, model_frames=60) == "bandai_inference_all_frames60"
+    assert bandai_inference.result_name(True, inducing=100, projection_iter=400,
+                                        relative_to="content", model_frames=0) == \
+        "bandai_inference_all_sparse100_iter400_relative_frameswhole"
+
+
+def test_crops_below_four_frames_are_refused(capsys):
+    for value in ("-1", "1", "3"):
+        with pytest.raises(SystemExit):
+            bandai_inference.main(["--model-frames", value])
+        assert f"--model-frames must be 0 (whole clips) or at least 4, got {value}" in \
+            capsys.readouterr().err
+
+
+def test_whole_clips_keep_every_frame(bandai_root):
+    from bayesmotion.datasets.bandai import load_bandai
+
+    cfg = dict(bandai_inference.ALL, contents=("bow",))
+    cropped = bandai_inference._clips(cfg, bandai_root, "clips")
+    whole = bandai_inference._clips({**cfg, "model_frames": None}, bandai_root, "clips")
+    raw = load_bandai(bandai_root, content=("bow",), fps=cfg["fps"])
+    assert [t.n_frames for t in whole] == [t.n_frames for t in raw]
+    assert [t.n_frames for t in cropped] == [min(t.n_frames, 40) for t in raw]
+    assert max(t.n_frames for t in whole) > 40  # the crop shortens at least one bow
+    assert whole.levels["emotion"] == cropped.levels["emotion"]
+
+
 def test_fit_lengths_below_one_are_refused(capsys):
     for flag in ("--fit-iter", "--refit-iter"):
         with pytest.raises(SystemExit):
