@@ -286,8 +286,8 @@ def test_killed_run_resumes_from_hdf5_without_losing_samples(tiny_model, tmp_pat
 def test_emcee_and_nuts_agree_on_a_small_model(tiny_model):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)
-        e = bm.sample_posterior(tiny_model, n_steps=2500, progress=False, seed=0)
-        f = bm.sample_posterior(tiny_model, n_steps=2500, progress=False, seed=2,
+        e = bm.sample_posterior(tiny_model, n_steps=1200, progress=False, seed=0)
+        f = bm.sample_posterior(tiny_model, n_steps=1200, progress=False, seed=2,
                                 factorise=True)
         n = bm.sample_posterior(tiny_model, n_steps=400, method="nuts", n_chains=2,
                                 progress=False, seed=1)
