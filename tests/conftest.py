@@ -44,6 +44,15 @@ def pytest_sessionfinish(session, exitstatus):
         shutil.rmtree(os.environ["JAX_COMPILATION_CACHE_DIR"], ignore_errors=True)
 
 
+def pytest_collection_modifyitems(session, config, items):
+    """The files that hold slow tests first, each file's tests in their own order. With
+    ``--dist loadfile`` a worker takes the next whole file when it is free, so a file of several
+    minutes taken last keeps the run waiting while the other worker has nothing left to do;
+    taken first, the short files fill in around it."""
+    heavy = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in heavy)  # stable: the order within a file holds
+
+
 def pytest_runtest_teardown(item, nextitem):
     """Between test files, drop JAX's compiled programs once the worker's memory mappings pass a
     quarter of the kernel's limit (``bayesmotion._config.release_compiled_programs``). A worker
