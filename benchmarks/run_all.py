@@ -244,6 +244,7 @@ EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all", "bandai_inference_
                                       "bandai_inference_starts3", "bandai_baselines",
                                       "bandai_inference_sparse100",
                                       "bandai_inference_sparse100_iter400",
+                                      "bandai_inference_sparse100_iter400_starts3",
                                       "bandai_inference_all_sparse100_iter400",
                                       "bandai_inference_sparse100_iter400_relative",
                                       "bandai_inference_all_sparse100_iter400_relative",
