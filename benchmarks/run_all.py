@@ -254,7 +254,8 @@ EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all", "bandai_inference_
                                       "bandai_inference_all_sparse50_iter400_relative",
                                       "bandai_inference_all_sparse100_iter400_relative_fit1500_300",
                                       "bandai_inference_all_sparse100_iter400_relative_frameswhole"),
-                 "infer_speed": ("device_timings", "device_timings_cpu")}
+                 "infer_speed": ("device_timings", "device_timings_cpu"),
+                 "synthesis": ("synthesis_by_kind",)}
 
 
 def load_results() -> dict:

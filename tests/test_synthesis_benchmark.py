@@ -46,6 +46,42 @@ def test_targets_are_judged_against_the_natural_rate():
     assert not synthesis.targets_met(g)["long_latent_range"]
 
 
+def test_a_bounded_group_must_come_to_rest_and_is_judged_after_its_clean_up():
+    """A bounded group's long rollouts must all come to rest (the largest last/first ratio,
+    the 50/50 mix's included); where the run cleaned the clips up, rate, jerk and sliding are
+    judged on the cleaned clips, the raw ones only reported."""
+    g = {"natural_rate": {"rate": 0.5}, "bounded": True, "mapping_noise_floor": 1e-3,
+         "synthesized_rate": {"mean": 0.25, "sampled": 0.25},
+         "naturalness": {"jerk_ratio": 1.3, "foot_sliding_ratio": 9.0},
+         "clean_up": {"legs": True, "synthesized_rate": {"mean": 0.5, "sampled": 0.45},
+                      "naturalness": {"jerk_ratio": 1.1, "foot_sliding_ratio": 0.4}},
+         "long_worst": {"latent_range": 1.0, "limb_motion_last_over_first": 0.01,
+                        "limb_motion_last_over_first_max": 0.04, "judge_p_last200": 0.3,
+                        "errors": 0},
+         "fit": {"iterations": 10, "converged": False}}
+    assert synthesis.targets_met(g) == {"rate_mean": True, "rate_sampled": True, "jerk": True,
+                                        "foot_sliding": True, "long_latent_range": True,
+                                        "long_at_rest": True}
+    g["long_worst"]["limb_motion_last_over_first_max"] = 0.3  # one rollout keeps moving
+    g["clean_up"]["naturalness"]["jerk_ratio"] = 1.25
+    g["targets_met"] = met = synthesis.targets_met(g)
+    assert not met["long_at_rest"] and not met["jerk"] and met["foot_sliding"]
+    (row,) = synthesis.headline_rows({"gesture": g}, {"emotions": {}}, 1000)[:1]
+    assert "after the clean-up with legs: judge 0.50 / 0.45, jerk ratio 1.25" in row["note"]
+    assert "bounded (floor 0.001), limb motion last/first <= 0.30" in row["note"]
+    assert row["note"].endswith("group targets not met: jerk, long_at_rest")
+    g.pop("clean_up")  # no clean-up: the raw clips are judged
+    assert not synthesis.targets_met(g)["foot_sliding"]
+
+
+def test_by_kind_floors_only_the_bounded_groups():
+    cfg = synthesis.BY_KIND
+    assert set(cfg.bounded) <= set(cfg.groups) and not set(cfg.bounded) & set(cfg.periodic)
+    assert [synthesis.group_floor(n, cfg) for n in cfg.groups] == [
+        1e-3 if n in cfg.bounded else 0.0 for n in cfg.groups]
+    assert synthesis.group_floor("gesture", synthesis.Settings()) == 0.0
+
+
 @pytest.mark.parametrize("bench", [synthesis, foot_contacts, transition_lengths, noise_floor])
 def test_missing_data_writes_a_skip_record(tmp_path, bench):
     out = tmp_path / "s.json"
