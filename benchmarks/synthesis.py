@@ -457,7 +457,8 @@ def group_run(name: str, data: MotionDataset, contents: tuple, judges: dict,
     extras = name == "walks" and cfg.extras
     trans = transitions(model, full_judge, cfg) if extras else None
     mech = mechanisms(group, model, real_speed, cfg, full_judge) if extras else None
-    def pooled(rows):
+
+    def pooled(rows):  # mean and sampled rollouts' ratios together
         return {k: float(np.mean([n[k] for n in rows])) for k in rows[0]} if rows else {}
 
     clean = ({"legs": legs, "naturalness": pooled(nat_clean),
