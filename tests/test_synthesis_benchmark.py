@@ -82,6 +82,20 @@ def test_by_kind_floors_only_the_bounded_groups():
     assert synthesis.group_floor("gesture", synthesis.Settings()) == 0.0
 
 
+@pytest.mark.parametrize("quick", [False, True])
+def test_by_kind_runs_its_own_settings(tmp_path, quick):
+    """--by-kind runs BY_KIND (--quick: a small run of the same kinds), never the plain
+    settings under the per-kind file's name."""
+    out = tmp_path / "k.json"
+    synthesis.main(["--by-kind", "--root", str(tmp_path / "nowhere"), "--out", str(out)]
+                   + (["--quick"] if quick else []))
+    cfg = json.loads(out.read_text())["settings"]
+    assert cfg["clean_up"] and cfg["handshake_floor"] == 1e-3 and not cfg["extras"]
+    assert cfg["bounded"] == (["gesture"] if quick else ["gesture", "gesture-2"])
+    assert all(b in cfg["groups"] for b in cfg["bounded"])
+    assert cfg["max_iter"] == (synthesis.QUICK.max_iter if quick else 1000)
+
+
 @pytest.mark.parametrize("bench", [synthesis, foot_contacts, transition_lengths, noise_floor])
 def test_missing_data_writes_a_skip_record(tmp_path, bench):
     out = tmp_path / "s.json"
