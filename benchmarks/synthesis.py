@@ -1,6 +1,6 @@
 """Synthesis 'Turing test' on the shared Bandai clips (Taubert et al. Table 1 analogue).
 
-    python benchmarks/synthesis.py [--quick] [--by-kind] [--root DIR] [--out FILE]
+    python benchmarks/synthesis.py [--quick] [--by-kind] [--seed N] [--root DIR] [--out FILE]
 
 For each content group (walks; run and dash; the gestures bye and bow) one one-actor H-GPDM
 (``HGPDM(rest_frames=True, canonical_side=True)``, emotion as its style factor; with
@@ -669,12 +669,15 @@ def main(argv=None) -> int:
     ap.add_argument("--by-kind", action="store_true",
                     help="each kind of motion with its documented settings (BY_KIND): "
                          "results/synthesis_by_kind.json")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="fit and rollout seed (default 0); with --by-kind the file is "
+                         "results/synthesis_by_kind_seed<N>.json")
     ap.add_argument("--rescore", action="store_true",
                     help="no fit: rebuild the stored result's headline (--out or "
                          "results/synthesis.json) from its measurements")
     a = ap.parse_args(argv)
     if a.by_kind and a.out is None:
-        a.out = RESULTS / f"{NAME}_by_kind.json"
+        a.out = RESULTS / f"{NAME}_by_kind{'' if not a.seed else f'_seed{a.seed}'}.json"
     if a.rescore:
         for row in rescore(a.out or RESULTS / f"{NAME}.json")["headline"]:
             print(row)
@@ -687,6 +690,8 @@ def main(argv=None) -> int:
                if a.quick else BY_KIND)
     if a.max_iter is not None:
         cfg = replace(cfg, max_iter=a.max_iter)
+    if a.seed is not None:
+        cfg = replace(cfg, seed=a.seed)
     res = run(a.quick, a.root, a.out, cfg)
     for row in res.get("headline", []):
         print(row)

@@ -87,9 +87,10 @@ def test_by_kind_runs_its_own_settings(tmp_path, quick):
     """--by-kind runs BY_KIND (--quick: a small run of the same kinds), never the plain
     settings under the per-kind file's name."""
     out = tmp_path / "k.json"
-    synthesis.main(["--by-kind", "--root", str(tmp_path / "nowhere"), "--out", str(out)]
-                   + (["--quick"] if quick else []))
+    synthesis.main(["--by-kind", "--seed", "3", "--root", str(tmp_path / "nowhere"),
+                    "--out", str(out)] + (["--quick"] if quick else []))
     cfg = json.loads(out.read_text())["settings"]
+    assert cfg["seed"] == 3
     assert cfg["clean_up"] and cfg["handshake_floor"] == 1e-3 and not cfg["extras"]
     assert cfg["bounded"] == (["gesture"] if quick else ["gesture", "gesture-2"])
     assert all(b in cfg["groups"] for b in cfg["bounded"])
