@@ -255,7 +255,7 @@ EXTRA_RESULTS = {"bandai_inference": ("bandai_inference_all", "bandai_inference_
                                       "bandai_inference_all_sparse100_iter400_relative_fit1500_300",
                                       "bandai_inference_all_sparse100_iter400_relative_frameswhole"),
                  "infer_speed": ("device_timings", "device_timings_cpu"),
-                 "synthesis": ("synthesis_by_kind",)}
+                 "synthesis": ("synthesis_by_kind", "synthesis_by_kind_seed1")}
 
 
 def load_results() -> dict:
