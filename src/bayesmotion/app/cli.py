@@ -147,7 +147,7 @@ def _parser() -> argparse.ArgumentParser:
                         "(sample_posterior(factorise=True)) instead of one")
     s.add_argument("--hmc", action="store_true",
                    help="add ensemble-preconditioned HMC steps to the default moves "
-                        "(sample_posterior(hmc=True)): far fewer steps, each ~18x dearer")
+                        "(sample_posterior(hmc=True)): far fewer steps, each ~13x dearer")
     s.add_argument("--no-independence", action="store_true",
                    help="leave out the independence step on the hyperparameters "
                         "(sample_posterior(independence=False)); the factorised sampler "

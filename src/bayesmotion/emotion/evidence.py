@@ -7,7 +7,7 @@ independent observations given its latents. They are not independent in what dec
 label: a recording is one performance, and what sets it apart from other recordings of its
 emotion (the actor's tempo, posture, how strongly the emotion is played) is shared by all of
 its frames. The evidence then grows with T while the information about the emotion does not:
-on the held-out Bandai walks the plain evidence puts the chosen level 14 to 870 nats ahead of
+on the held-out Bandai walks the plain evidence puts the chosen level 14 to 865 nats ahead of
 the next, wrong labels included (``benchmarks/results/bandai_inference.json``, key
 ``result.trials[*].level_log_evidence``): P = 1.00 for every clip.
 
