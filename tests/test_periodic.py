@@ -75,6 +75,27 @@ def test_spec_flag_is_checked_and_stored():
         bm.HGPDM(periodic="yes")
 
 
+def test_fifteen_of_the_sixteen_shared_walks_loop(bandai_root):
+    """The loops docs/model.md reports for the synthesis benchmark's walk settings (10 fps, rest
+    frames, canonical side): every walk recording's end finds a matching earlier window but
+    the left-turning sad walk's, whose best match is 1.37 median steps away."""
+    from bayesmotion.datasets.bandai import WALK_CONTENTS, load_bandai
+    from bayesmotion.model.data import fit_codecs, prepare_data
+
+    data = load_bandai(bandai_root, content=list(WALK_CONTENTS), fps=10.0)
+    spec = bm.HGPDM(rest_frames=True, canonical_side=True, periodic=True,
+                    interaction_factors=("emotion",),
+                    dynamics_factors=("emotion",)).resolved(data)
+    md = prepare_data(spec, data, fit_codecs(spec, data))
+    loops, info = find_loops(md.Y, md.lengths, spec.order)
+    np.testing.assert_array_equal(md.loops, loops)  # what a fit of this spec gets
+    names = [t.name for t in data]
+    assert len(names) == 16 and int((loops >= 0).sum()) == 15
+    lost = names.index("dataset-1_walk-left_sad_001")
+    assert loops[lost] == -1 and info[lost]["match"] == pytest.approx(1.37, abs=0.01)
+    assert max(i["match"] for k, i in enumerate(info) if k != lost) < 1.0
+
+
 @pytest.fixture(scope="module")
 def walk_model(bandai_root):
     """A periodic model of the four Bandai 'walk' clips at 10 fps, 150 iterations."""
