@@ -58,6 +58,7 @@ BENCHMARKS = [
     "calibration_consistency",
     "posterior_convergence",
     "demo_posterior",
+    "demo_quick",
     "pinned_threshold",
     "jax_versions",
     "sparse_scaling",
