@@ -17,11 +17,10 @@ Timed after warm-up (median of repeats), each producing ``n_frames`` frames of b
 * ``generate_public_16_samples``: ``n_samples=16`` (frames/s counted per mean frame and per
   generated frame, 17 T);
 * ``mean_only``: dynamics mean rollout + top-down mean mapping + decoding + FK, no variance
-  at any layer (Taubert et al.'s mean prediction; before 2026-11-22 this row still computed
-  the per-frame variances of the dynamics and the top-down mapping, and overstated the cost);
+  at any layer (Taubert et al.'s mean prediction);
 * ``dynamics_rollout_core``: the jitted ``lax.scan`` core alone (latent frames), mean and 16
   vmapped sampled rollouts;
-* the rows below ``generate_*`` use the predictor as ``generate`` does since 2026-11-22:
+* the rows below ``generate_*`` use the predictor as ``generate`` does:
   restricted to the style cells the rollout's styles see (``restrict_to_styles``, exact; one
   of the 8 built-in cells for a rollout at one emotion);
 * a profile of the public call's parts: conditioning, dynamics rollout, top-down mapping,

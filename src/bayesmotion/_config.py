@@ -33,9 +33,12 @@ test_cholesky_inverse_matches_numpy). bayesmotion's only callback, the LAPACK pa
 (``gp.linalg.HOST_CALLBACK``): the XLA path runs there instead.
 
 BLAS threads: JAX's CPU Cholesky and triangular solves call SciPy's OpenBLAS, whose threads
-busy-wait; with the cores shared (XLA's own pool, other processes) the threaded ``potrf`` was
-5-21x slower than one thread on the 2-core target machine (benchmarks/results/blas_threads.json).
-bayesmotion therefore sets ``OPENBLAS_NUM_THREADS=1`` unless the caller set it. It applies when
+busy-wait, so with the cores shared (XLA's own pool, other processes, test workers) they take
+cycles from the work beside them. One thread costs little when the cores are idle: on the
+2-core target machine the default thread count takes 0.74-1.05 times the one-thread time of
+a 1000 x 1000 Cholesky and of a log-posterior value and gradient
+(benchmarks/results/blas_threads.json, a quick run). bayesmotion therefore sets
+``OPENBLAS_NUM_THREADS=1`` unless the caller set it. It applies when
 SciPy's OpenBLAS is loaded after bayesmotion is imported (the usual case: jaxlib loads it on the
 first factorisation). The exception is :func:`bayesmotion.gp.linalg.cholesky_inverse`, which
 raises the count for its own calling thread (``openblas_set_num_threads_local``) while XLA's

@@ -297,11 +297,12 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             read two sad trials as neutral (91.7%); "vertices" compares every
             level at its own optimum (24/24). On generated clips between two emotions (demo
             model, s in {0, .25, .5, .75, 1}) its mean absolute error in s is 0.027
-            (neutral to happy) and 0.065 (sad to angry), against 0.041 and 0.47 with
-            "nearest". With "vertices" ``info`` holds ``level_log_evidence``,
-            ``level_probabilities`` (the plain evidence's posterior; ``probabilities`` adds
-            the recording effect and the out-of-distribution shrinkage) and the Laplace
-            details per level.
+            (neutral to happy) and 0.13 (sad to angry, s = 0.5 read as neutral), against
+            0.027 and 0.47 with "nearest", which reads sad to angry from s = 0.5 on as happy
+            (``benchmarks/results/infer_speed.json``, key ``modes.*.interpolation``). With
+            "vertices" ``info`` holds ``level_log_evidence``, ``level_probabilities`` (the
+            plain evidence's posterior; ``probabilities`` adds the recording effect and the
+            out-of-distribution shrinkage) and the Laplace details per level.
         level_starts: projections per emotion level (``emotion_starts="vertices"``): one
             from the level's start (``staged_start``) and ``level_starts`` - 1 from copies of it
             jittered by ``start_jitter`` (> 0 when ``level_starts`` > 1); each level keeps
@@ -319,9 +320,9 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             (``bandai_inference.json``, ``bandai_inference_jittered.json``), and 15 of 16 with
             ``level_starts=3, start_jitter=0.02`` (``bandai_inference_starts3.json``, at
             about three times the projection cost); recommended for real recordings. On
-            generated handshakes between sad and angry one jittered start read s = 0.5 and
-            0.75 as neutral (mean absolute error 0.28 against 0.065 unjittered), three starts
-            gave the unjittered answers (``infer_speed.json``).
+            generated handshakes between sad and angry one jittered start read s = 0.75 as
+            neutral (mean absolute error 0.20 against 0.13 unjittered, which reads s = 0.5 as
+            neutral), three starts gave the unjittered answers (``infer_speed.json``).
         effective_frames: n_eff, how many of the clip's frames count as independent evidence
             for its label (:mod:`bayesmotion.emotion.evidence`): the label probabilities
             raise the levels' evidence to the power n_eff / (n_eff + T)

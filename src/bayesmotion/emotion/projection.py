@@ -147,9 +147,9 @@ def _style_start(model, factor: str, conc, nearest) -> np.ndarray:
     frames have (0.15 spread over the others), so that the start matches its latents.
 
     From the prior mean (a uniform mix, which scales every style-weighted prediction down)
-    the projection settled in mixed-style optima: on the built-in handshakes, the happy, angry
-    and sad training trials of couple c2 all read as neutral after 200 L-BFGS iterations, and
-    leave-one-trial-out got 62.5% (100% with this start)."""
+    the projection can settle in a mixed-style optimum that explains the clip worse than any
+    level does; started near the level its latents come from, it starts where that level's
+    predictions are whole."""
     K = conc.size
     level = np.argmax(model.data.onehot[factor], 1)[model.data.trial_of_frame[nearest]]
     v = np.full(K, 0.15 / max(K - 1, 1))

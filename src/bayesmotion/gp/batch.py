@@ -3,8 +3,9 @@
 ``jax.vmap`` turns each N x N kernel matrix and Cholesky factor of a log-density into a stack of
 B of them; on a GPU that is what fills the device. On a CPU the stack of a whole half-ensemble
 (27 x 340 x 340 float64: 0.9 MB per matrix, 25 MB per stack) leaves the caches, and every pass
-over it reads main memory: one vmapped log-density of the demo-size posterior cost 1.6 times as
-much per point as the same function two points at a time inside one program (``jax.lax.map``).
+over it reads main memory: one vmapped log-density of the demo-size posterior costs 1.6 (jax
+0.10) to 1.8 (jax 0.9) times as much per point as the same function two points at a time inside
+one program (``jax.lax.map``).
 :func:`over_points` therefore maps over small chunks of points on a CPU and vmaps the whole
 batch elsewhere; ``benchmarks/results/walker_batching.json`` has the times of each layout on the
 2-core target (jax 0.9 and 0.10).

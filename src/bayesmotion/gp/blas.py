@@ -27,11 +27,10 @@ def blas_threads():
     the cores idle lately (:class:`_OtherLoad`); a no-op for other BLAS builds or when the
     caller set ``OPENBLAS_NUM_THREADS`` themselves.
 
-    Why the load check: threaded OpenBLAS next to another busy process is far slower than one
-    thread. Two processes each computing the N = 1000 layer took 120-145 ms per call with
-    raised threads, 91-94 ms with a 16-cycle spin timeout, and 46 ms with one thread, against
-    30 ms with raised threads alone on the machine (2 cores). A test run with two workers
-    took 14.7 min instead of 9.8."""
+    Why the load check: OpenBLAS's threads busy-wait, so next to another busy process raised
+    threads take cycles from it and from each other, and one thread is faster; alone on the
+    machine raised threads are about as fast or faster
+    (``benchmarks/results/blas_threads.json``)."""
     set_local = _set_threads_local()
     n = len(os.sched_getaffinity(0)) if set_local is not None else 1
     if n < 2 or not _OTHER_LOAD.idle():

@@ -265,8 +265,8 @@ def default_moves(target, hmc: bool = False, proposal=None, canonical_proposal=N
     rotated = _rotated(moves)
     extra = []
     if proposal is not None:
-        # the hyperparameters are nearly Gaussian, strongly correlated (DE crawls there: tau
-        # ~300 steps at the demo size): an accepted independence proposal is a fresh draw
+        # the hyperparameters are nearly Gaussian, strongly correlated (DE crawls there): an
+        # accepted independence proposal is a fresh draw
         block, mean, cov, *rest = proposal
         weights, marginal = (list(rest) + [None, None])[:2]
         extra = [CanonicalIndependence(canonical_proposal, block, mean, cov, weights=weights,
@@ -277,7 +277,7 @@ def default_moves(target, hmc: bool = False, proposal=None, canonical_proposal=N
     if not (hmc and hasattr(target, "_logp")):
         return Sequence(moves, *extra) if extra else moves
     # the hyperparameters (and two-level styles) are nearly Gaussian but strongly correlated,
-    # where DE crawls (tau ~300 steps at the demo size); the rotated styles are heavy-tailed,
+    # where DE crawls; the rotated styles are heavy-tailed,
     # so they get their own block, preconditioner and a smaller step
     block = [i for i in range(target.ndim) if i not in rotated]
     hmcs = [EnsembleHMC(target._logp, b, step_size=step, jitter=(0.2, 1.1), shrinkage=shrink)

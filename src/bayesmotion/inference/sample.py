@@ -61,8 +61,8 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         hmc: add, after the default moves, two ensemble-preconditioned HMC steps
             (:class:`bayesmotion.inference.moves.EnsembleHMC`): one on the coordinates the style
             rotations do not move (the hyperparameters and two-level style vectors: nearly
-            Gaussian but strongly correlated, where DE crawls, autocorrelation time ~300 steps
-            at the demo size), one on the rotated style vectors (heavy-tailed: smaller steps).
+            Gaussian but strongly correlated, where DE crawls), one on the rotated style
+            vectors (heavy-tailed: smaller steps).
             A step costs about 13x an evaluation of every walker at the built-in size (about 4
             gradients per walker and block; ``benchmarks/results/sampler_ess.json``, key
             ``eval_costs.builtin``). Off by default: no long run has shown it to mix faster

@@ -118,8 +118,8 @@ class Target:
 
     def laplace(self, centre) -> np.ndarray:
         """Covariance of the Laplace approximation at ``centre``: the inverse Hessian of the
-        negative log-density, by central differences of the JAX gradient (step 1e-4; compiling
-        ``jax.hessian`` through the Cholesky factors took 15 s at N = 340, the differences 7 s).
+        negative log-density, by central differences of the JAX gradient (step 1e-4: one
+        compiled gradient instead of ``jax.hessian`` through the Cholesky factors).
         Directions where the Hessian is not positive definite (a saddle or a flat ridge) get the
         prior's variance, 9 in log units."""
         H = difference_hessian(lambda x: self._neg_vg(jnp.asarray(x), self.jitter)[1], centre)

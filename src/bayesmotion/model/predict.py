@@ -181,7 +181,7 @@ def condition(model, params: dict | None = None, jitter: float | None = None,
     """Condition every layer on the training data at ``params`` (default: the MAP).
 
     The work is one jitted function per model (cached on it), so conditioning on many
-    posterior draws compiles once; run eagerly, op by op, it spent ~5 s compiling.
+    posterior draws compiles once.
 
     ``blocked``: condition the style layers cell by cell where their kernel is block-diagonal
     (one-hot training styles; see :class:`LayerFit`); the same predictions for less work.

@@ -25,10 +25,11 @@ class EnsembleHMC(emcee.moves.Move):
     ensemble's average still takes small steps now and then. The random draws come from emcee's
     generator, so a run resumed from a backend continues the same chain.
 
-    Why: at the demo size the differential-evolution move accepts 6% of its proposals and the
-    hyperparameters' autocorrelation time reached 300 steps (the posterior is nearly Gaussian
-    there, but strongly correlated, and the style coordinates' heavy tails spoil DE's joint
-    proposals); HMC on the hyperparameter block brought it to 4-9 steps in a 250-step run.
+    Why: the hyperparameters' posterior is nearly Gaussian but strongly correlated, and the
+    style coordinates' heavy tails spoil differential evolution's joint proposals; gradient
+    steps preconditioned by the ensemble follow the correlations. Each such step costs about
+    13 ensemble steps at the built-in size (``benchmarks/results/sampler_ess.json``, key
+    ``eval_costs``), so it is opt-in (``sample_posterior(hmc=True)``).
 
     Args:
         logp: the log-density of one flat vector, a pure JAX function (e.g. ``Target._logp``).

@@ -6,9 +6,8 @@ The likelihood sees a factor's style vectors only through their inner products (
 orthogonal ``Q`` with ``Q 1 = 1`` maps rows on the simplex's plane to rows on it and leaves
 ``S Q Q^T S^T = S S^T``: the likelihood is constant along these rotations, and only the Dirichlet
 prior tells the points of an orbit apart. For K = 4 levels that is a 3-dimensional ridge, which
-differential-evolution moves cross slowly (at the demo size, after 7,000 steps of the DE move
-alone, R-hat was 1.24 for the style coordinates and 1.06 for their Gram matrix;
-``benchmarks/posterior_convergence.py``).
+differential-evolution moves cross slowly: their proposals are differences of other walkers'
+positions, which lie anywhere on the ridge.
 
 :class:`StyleRotations` follows each step of an inner move (DE by default) with Metropolis
 steps along the orbits: ``S -> S Q``, ``Q = B R B^T + 1 1^T / K`` with ``B`` an orthonormal basis
