@@ -83,8 +83,16 @@ def test_fit_decreases_objective_and_records_diagnostics(fitted):
     assert d["objective"] < d["initial_objective"]
     trace = np.array(d["trace"])
     assert np.all(np.diff(trace) <= 1e-8 * np.abs(trace[:-1]))  # L-BFGS accepts only descents
-    for key in ("iterations", "evaluations", "grad_norm", "message", "converged", "jitter"):
-        assert key in d
+    assert 1 <= d["iterations"] <= 60 and d["evaluations"] >= d["iterations"]
+    assert len(trace) == d["iterations"]  # one objective per L-BFGS iteration
+    assert trace[-1] == pytest.approx(d["objective"], rel=1e-10, abs=1e-6)
+    assert np.isfinite(d["grad_norm"]) and d["grad_norm"] > 0
+    assert d["jitter"] in JITTER_LADDER and d["jitter_events"] == []
+    c = d["convergence"]
+    assert d["converged"] == c["met"] and isinstance(d["converged"], bool)
+    # stopped by its limit or converged, and the message says which
+    assert c["max_iter_reached"] == (d["iterations"] >= 60 and not d["converged"])
+    assert ("LIMIT" in d["message"]) == c["max_iter_reached"]
     assert np.isfinite(fitted.log_posterior())
 
 
