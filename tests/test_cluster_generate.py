@@ -55,9 +55,25 @@ def test_cluster_rollouts_equal_local_ones(post, client):
 
 
 @pytest.mark.slow
-def test_workers_start_and_close_their_own_cluster(post):
+def test_workers_start_and_close_their_own_cluster(post, monkeypatch):
+    import dask.distributed as dd
+
+    made = []
+
+    class Recording(dd.LocalCluster):
+        def __init__(self, *args, **kwargs):
+            made.append({"kwargs": kwargs, "closed": False})
+            super().__init__(*args, **kwargs)
+
+        def close(self, *args, **kwargs):
+            made[-1]["closed"] = True
+            return super().close(*args, **kwargs)
+
+    monkeypatch.setattr(dd, "LocalCluster", Recording)
     kw = {"emotion": "sad", "n_frames": 10, "n_samples": 1, "n_draws": 2, "seed": 1}
     _same(post.generate(**kw), post.generate(**kw, workers=2))
+    assert len(made) == 1 and made[0]["closed"]  # one cluster of its own, closed at the end
+    assert made[0]["kwargs"]["n_workers"] == 2 and made[0]["kwargs"]["threads_per_worker"] == 1
 
 
 def test_bad_arguments_are_refused_before_any_task(post, client):
