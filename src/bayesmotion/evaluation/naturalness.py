@@ -47,9 +47,9 @@ flexion ``∠(knee - hip, root - neck)`` against the trunk's downward axis; ankl
 over all reference frames (widened by ``margin`` degrees, default 1e-6 for round-off); without
 them, outside the generous anatomical ranges of elbow and knee flexion in ``ANATOMICAL_LIMITS``
 (elbow 0-150°; knee -10-160°, allowing a little hyperextension and capture noise), which flag
-impossible rather than unusual poses. The reference range is tight: a real Bandai walk held out
-of the other 15 leaves their range in 0-87 % of its frames (by up to 17°), so read violations
-relative to real clips scored the same way.
+impossible rather than unusual poses. The reference range is tight: a real clip held out of
+its group can leave the range the others span, so read violations relative to real clips
+scored the same way.
 
 **Jerk** grows with the frame rate (finite differences amplify capture noise by ``fps³``), so a
 motion is only compared with references at its own frame rate: references given as motions are

@@ -6,9 +6,8 @@ factor's diagonal (for log|K|):
 - on CPU, for N >= 256, by LAPACK's potrf + potri (scipy's OpenBLAS) through a host callback,
   with OpenBLAS's threads raised to the core count for the calling thread only (XLA's pool is
   blocked on the callback meanwhile) while no other process keeps the cores busy
-  (:func:`bayesmotion.gp.blas.blas_threads`): 17-19 ms at N = 1000 on the 2-core target, against
-  33-41 ms for the XLA path below (jaxlib's one-thread potrf takes 11 ms of it, the blocked
-  trtri + lauum 24 ms), and 28-30 ms for the same LAPACK calls on one thread;
+  (:func:`bayesmotion.gp.blas.blas_threads`), which on jaxlib < 0.10 is faster than the XLA
+  path below;
 - elsewhere (GPU, TPU, small blocks where a callback's overhead dominates, and on jaxlib >= 0.10,
   where a host callback inside a program run by XLA's one-thread CPU pool can wait forever on its
   own argument; see :mod:`bayesmotion._config`) by XLA: Cholesky,
@@ -27,8 +26,8 @@ from scipy.linalg import get_lapack_funcs
 from bayesmotion._config import jaxlib_version
 from bayesmotion.gp.blas import blas_threads
 
-_BLOCK = 128  # leaf size of the recursive inverses; 64-256 time alike at N = 1000 on 2 cores
-_LAPACK_MIN = 256  # below this a host callback costs more than it saves (8 x 100: 1.3 vs 1.2 ms)
+_BLOCK = 128  # leaf size of the recursive inverses
+_LAPACK_MIN = 256  # below this a host callback costs more than it saves
 #: Whether the CPU path may use the host callback: not on jaxlib >= 0.10 (module docstring).
 HOST_CALLBACK = jaxlib_version() < (0, 10)
 
@@ -87,7 +86,7 @@ def _host_cholesky_inverse(K):
 
 def _fill_upper(A: np.ndarray, block: int = 64) -> None:
     """Copy the lower triangle of a square array onto its upper one, in place, by column
-    blocks (0.9 ms at N = 1000; ``tril + tril.T`` in XLA took 2-6 ms)."""
+    blocks, without the temporary arrays of ``tril + tril.T``."""
     n = A.shape[0]
     for s in range(0, n, block):
         e = min(s + block, n)
@@ -116,9 +115,8 @@ def triangular_inverse(L: jnp.ndarray, block: int = _BLOCK) -> jnp.ndarray:
 
 def lower_gram(M: jnp.ndarray, block: int = _BLOCK) -> jnp.ndarray:
     """M^T M for a lower-triangular M, recursing on the blocks (LAPACK's lauum). With
-    M = L^-1 from :func:`triangular_inverse` this is K^-1 (LAPACK's potri): 26-30 ms (best of
-    15) at N = 1000 on the 2-core target, against 75 ms for a triangular solve with the
-    identity followed by a full product, and 69 ms for ``cho_solve(L, I)``."""
+    M = L^-1 from :func:`triangular_inverse` this is K^-1 (LAPACK's potri); the recursion never
+    multiplies M's zero blocks above the diagonal."""
     n = M.shape[0]
     if n <= block:
         return M.T @ M

@@ -129,8 +129,7 @@ def pack_lower(L: jnp.ndarray, depth: int = 2) -> dict:
 
 def lower_parts(packed: dict, k: jnp.ndarray) -> list:
     """L @ k from :func:`pack_lower`'s blocks, as a list of row blocks (concatenated, they are
-    L @ k). 816 x 816 times 816 x 500 on the 2-core target: 5.0 ms against 7.2 ms for the dense
-    product; 1088: 10.5 against 13.7 ms."""
+    L @ k), skipping the zero blocks above the diagonal that a dense product multiplies."""
     if "leaf" in packed:
         return [packed["leaf"] @ k]
     h = packed["off"].shape[1]
@@ -404,8 +403,8 @@ def dynamics_mean_stepper(P: Predictor, styles):
     against every training row, xs (n_steps, M) from per-step styles (n_steps, K_f).
 
     Per step that leaves one batched product with the training lags, one fused elementwise
-    pass and one product with the weights (a rollout is sequential; 500 steps at M = 768:
-    4.1 ms against 5.5 ms for the general kernel per step)."""
+    pass and one product with the weights (a rollout is sequential, so the per-step work is
+    what its time is made of)."""
     U, alpha = P.dyn_lags, P.alpha  # (o, M, Q)
     o = U.shape[0]
     norms = jnp.sum(U**2, -1)  # (o, M)

@@ -19,8 +19,7 @@ class IndependenceMove(emcee.moves.MHMove):
     to the t (near-Gaussian, however correlated), the autocorrelation time is about
     2 / acceptance - 1. Where the block's conditional posterior differs from the proposal (the
     tails, or where the other coordinates shift it), a walker is rarely accepted and "sticks"
-    until another move (DE) takes it back: at the demo size 5% of the posterior's states accept
-    under 0.2% of proposals.
+    until another move (DE) takes it back.
 
     With ``mean`` (k, d), ``cov`` (k, d, d) and ``weights`` (k,) the proposal is the mixture
     ``sum_i w_i t(mean_i, cov_i)``, one component per mode of a multimodal posterior: a walker
@@ -28,8 +27,8 @@ class IndependenceMove(emcee.moves.MHMove):
     local moves (DE) make only by crossing the low-density region between the modes.
 
     The proposal is not fitted to the other half of the ensemble (red-blue, as emcee's moves):
-    at the demo size, with 27 walkers per half, that 14-dimensional covariance is too noisy
-    (5% of proposals accepted, against 25% with the Laplace approximation's covariance).
+    at the demo size, with 27 walkers per half, a 14-dimensional covariance estimated from one
+    half is too noisy for a proposal that must match the whole posterior.
 
     Args:
         block: flat indices of the coordinates moved.
