@@ -96,6 +96,26 @@ def test_fifteen_of_the_sixteen_shared_walks_loop(bandai_root):
     assert max(i["match"] for k, i in enumerate(info) if k != lost) < 1.0
 
 
+def test_the_neutral_run_and_dash_are_too_short_to_loop(bandai_root):
+    """docs/model.md: at 10 fps the neutral run (8 frames) and dash (7) are the only run/dash
+    recordings whose end matches no earlier window (best matches about 1.4 median steps
+    away); every other run and dash loops."""
+    from bayesmotion.datasets.bandai import load_bandai
+    from bayesmotion.model.data import fit_codecs, prepare_data
+
+    data = load_bandai(bandai_root, content=["run", "dash"], fps=10.0)
+    spec = bm.HGPDM(rest_frames=True, canonical_side=True, periodic=True,
+                    interaction_factors=("emotion",),
+                    dynamics_factors=("emotion",)).resolved(data)
+    md = prepare_data(spec, data, fit_codecs(spec, data))
+    loops, info = find_loops(md.Y, md.lengths, spec.order)
+    lengths = {t.name: t.n_frames for t in data}
+    lost = {t.name for t, l in zip(data, loops, strict=True) if l < 0}
+    assert lost == {"dataset-1_run_normal_001", "dataset-1_dash_normal_001"}
+    assert lengths["dataset-1_run_normal_001"] == 8 and lengths["dataset-1_dash_normal_001"] == 7
+    assert all(i["match"] > 1.3 for t, i in zip(data, info, strict=True) if t.name in lost)
+
+
 @pytest.fixture(scope="module")
 def walk_model(bandai_root):
     """A periodic model of the four Bandai 'walk' clips at 10 fps, 150 iterations."""
