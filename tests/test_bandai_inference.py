@@ -35,6 +35,9 @@ def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
     pred = [t["pred"] for t in r["trials"]]
     hit = [a == b for a, b in zip(true, pred, strict=True)]
     assert r["accuracy"] == pytest.approx(np.mean(hit))
+    # the quick folds (walk-left and walk-right, each the other's mirror image once the codec
+    # puts both on one side) read 8 of 8 right; far above chance (2 of 8) either way
+    assert r["accuracy"] >= 0.75
     for t in r["trials"]:
         assert t["pred"] in levels and len(t["probabilities"]) == 4
     # the diagonal: the share of each intended emotion inferred correctly
@@ -69,13 +72,7 @@ def test_quick_leave_one_clip_out_on_real_walks(bandai_root, tmp_path):
     assert r["baseline_label_calibration"]["affective_features"]["accuracy"] == pytest.approx(
         r["baselines"]["affective_features"])
     cal = r["calibrated"]
-    if "error" in cal:  # no power reaches the coverage: the most any reaches is reported
-        assert "no likelihood power" in cal["error"]
-        assert 0.0 <= cal["reachable_hpd_coverage"] < 0.9
-        row = saved["headline"][3]
-        assert row["value"] == pytest.approx(100 * cal["reachable_hpd_coverage"])
-        assert "no likelihood power" in row["note"]
-        return
+    assert "error" not in cal  # the quick folds reach the coverage at some likelihood power
     assert cal["coverage"] == pytest.approx(np.mean([t["calibrated"]["covered"]
                                                      for t in r["trials"]]))
 
