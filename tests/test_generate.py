@@ -53,6 +53,19 @@ def test_continuous_style_interpolates_and_flags_extrapolation(tiny_model):
     a = tiny_model.generate(emotion="happy", n_frames=10).Y
     b = tiny_model.generate(emotion="sad", n_frames=10).Y
     assert not np.allclose(inside.Y, a) and not np.allclose(inside.Y, b)
+    np.testing.assert_allclose(inside.styles["emotion"], [[0.5, 0.5]] * 10)
+    np.testing.assert_allclose(outside.styles["emotion"], [[1.3, -0.3]] * 10)
+    # the style kernel is linear in each style vector, so from one start the first generated
+    # step's mean at any coordinates is that mix of the levels' means, inside the simplex
+    # and out of it
+    o = tiny_model.spec.order
+    start = np.asarray(tiny_model.params["I"])[:o]
+    first = {e: tiny_model.generate(emotion=e, n_frames=o + 1, start=start).I[o]
+             for e in ("happy", "sad")}
+    for w in (0.5, 1.3):
+        mix = tiny_model.generate(emotion=[w, 1 - w], n_frames=o + 1, start=start).I[o]
+        np.testing.assert_allclose(mix, w * first["happy"] + (1 - w) * first["sad"],
+                                   rtol=1e-9, atol=1e-12)
     tr = tiny_model.generate(emotion=bm.Transition("happy", "sad", start=3, length=4),
                              n_frames=10)
     s = tr.styles["emotion"]
