@@ -293,10 +293,10 @@ def infer_emotion(model, clip, *, frames=None, couple=None, styles=None, prior=N
             the nearest training frames, about a third of the cost) or "levels" (that start
             plus one per emotion level, from the nearest frames of that level's training
             trials; the best optimum is kept; K + 1 times the projection's cost). A better
-            joint optimum is not always the right label: on the built-in handshakes "levels"
-            read two sad trials as neutral (91.7%); "vertices" compares every
-            level at its own optimum (24/24). On generated clips between two emotions (demo
-            model, s in {0, .25, .5, .75, 1}) its mean absolute error in s is 0.027
+            joint optimum is not always the right label; "vertices" compares every level at
+            its own optimum (24 of 24 held-out built-in handshakes right,
+            ``benchmarks/results/handshake_inference.json``). On generated clips between two
+            emotions (demo model, s in {0, .25, .5, .75, 1}) its mean absolute error in s is 0.027
             (neutral to happy) and 0.13 (sad to angry, s = 0.5 read as neutral), against
             0.027 and 0.47 with "nearest", which reads sad to angry from s = 0.5 on as happy
             (``benchmarks/results/infer_speed.json``, key ``modes.*.interpolation``). With

@@ -19,9 +19,8 @@ level's evidence is the Laplace approximation of the latents' marginal likelihoo
 
 with H_k the Hessian of -log p over the d latent coordinates of the clip's frames (and any other
 free style) at the level's optimum. Unlike the best optimum of a joint search over latents and
-style, it compares every level at its own optimum: on the built-in handshakes the joint search
-from several starts stopped at mixed-style points (neutral 0.69, sad 0.28) 1,700 nats below the
-optimum with the emotion held at sad.
+style, it compares every level at its own optimum: a joint search can stop at a mixed-style
+point far below the optimum the density has with the emotion held at one level.
 """
 
 from __future__ import annotations
@@ -46,8 +45,7 @@ HVP_CHUNK = 64  # Hessian-vector products per vmapped batch
 # probes and the banded Hessian's (more of them) share one program
 HVP_BLOCK = 8
 # default sd of the jitter of project_levels' starts, in latent units: none, the nearest-frame
-# latents exactly (the latents' sd is about 0.45; benchmarks/results/projection_starts.json
-# measured jittered starts at 0.02)
+# latents exactly (benchmarks/results/projection_starts.json measured jittered starts at 0.02)
 START_JITTER = 0.0
 STATIC_ARGS = ("int_factors", "dyn_factors", "init_var")
 
@@ -120,8 +118,8 @@ def projection_starts(model, Ys, B, inferred, conc, mode: str) -> list[dict]:
     level k with the latents of the nearest frames among level k's training trials and the
     emotion near vertex k -- the clip explained as each emotion in turn. The projection keeps
     the best optimum, so its objective is never worse than from "nearest" alone. The clip
-    density is multimodal in (latents, style): on the Bandai walks the single start ended up to
-    200 nats above the optimum of the same density with the emotion held at another vertex.
+    density is multimodal in (latents, style): a single start can end above the optimum the
+    same density has with the emotion held at another vertex.
     """
     groups = [None]
     if mode == "levels" and "emotion" in model.data.onehot:
