@@ -75,20 +75,30 @@ def test_spec_flag_is_checked_and_stored():
         bm.HGPDM(periodic="yes")
 
 
-def test_fifteen_of_the_sixteen_shared_walks_loop(bandai_root):
-    """The loops docs/model.md reports for the synthesis benchmark's walk settings (10 fps, rest
-    frames, canonical side): every walk recording's end finds a matching earlier window but
-    the left-turning sad walk's, whose best match is 1.37 median steps away."""
-    from bayesmotion.datasets.bandai import WALK_CONTENTS, load_bandai
+def _synthesis_loops(root, contents):
+    """(clips, loops, find_loops info) of the shared Bandai ``contents`` at the synthesis
+    benchmark's settings (10 fps, rest frames, canonical side, periodic): the loops a fit of
+    that spec gets, without fitting."""
+    from bayesmotion.datasets.bandai import load_bandai
     from bayesmotion.model.data import fit_codecs, prepare_data
 
-    data = load_bandai(bandai_root, content=list(WALK_CONTENTS), fps=10.0)
+    data = load_bandai(root, content=list(contents), fps=10.0)
     spec = bm.HGPDM(rest_frames=True, canonical_side=True, periodic=True,
                     interaction_factors=("emotion",),
                     dynamics_factors=("emotion",)).resolved(data)
     md = prepare_data(spec, data, fit_codecs(spec, data))
     loops, info = find_loops(md.Y, md.lengths, spec.order)
     np.testing.assert_array_equal(md.loops, loops)  # what a fit of this spec gets
+    return data, loops, info
+
+
+def test_fifteen_of_the_sixteen_shared_walks_loop(bandai_root):
+    """The loops docs/model.md reports for the synthesis benchmark's walk settings (10 fps, rest
+    frames, canonical side): every walk recording's end finds a matching earlier window but
+    the left-turning sad walk's, whose best match is 1.37 median steps away."""
+    from bayesmotion.datasets.bandai import WALK_CONTENTS
+
+    data, loops, info = _synthesis_loops(bandai_root, WALK_CONTENTS)
     names = [t.name for t in data]
     assert len(names) == 16 and int((loops >= 0).sum()) == 15
     lost = names.index("dataset-1_walk-left_sad_001")
@@ -100,15 +110,7 @@ def test_the_neutral_run_and_dash_are_too_short_to_loop(bandai_root):
     """docs/model.md: at 10 fps the neutral run (8 frames) and dash (7) are the only run/dash
     recordings whose end matches no earlier window (best matches about 1.4 median steps
     away); every other run and dash loops."""
-    from bayesmotion.datasets.bandai import load_bandai
-    from bayesmotion.model.data import fit_codecs, prepare_data
-
-    data = load_bandai(bandai_root, content=["run", "dash"], fps=10.0)
-    spec = bm.HGPDM(rest_frames=True, canonical_side=True, periodic=True,
-                    interaction_factors=("emotion",),
-                    dynamics_factors=("emotion",)).resolved(data)
-    md = prepare_data(spec, data, fit_codecs(spec, data))
-    loops, info = find_loops(md.Y, md.lengths, spec.order)
+    data, loops, info = _synthesis_loops(bandai_root, ("run", "dash"))
     lengths = {t.name: t.n_frames for t in data}
     lost = {t.name for t, l in zip(data, loops, strict=True) if l < 0}
     assert lost == {"dataset-1_run_normal_001", "dataset-1_dash_normal_001"}
