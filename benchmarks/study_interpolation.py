@@ -37,9 +37,12 @@ also 0 and 1 at the real clips); (c) by the naturalness proxies of
 The ranking function reads keyframe poses and speeds, so it depends on where in the gait cycle a
 clip starts: ``phase_sensitivity`` scores windows of the real clips started 0, 8 and 16 frames
 in with both measures, and each method's summary says how far its s = 0 and s = 1 outputs
-score from the real clips (``*_vertex_error``). The H-GPDM's outputs also record how far their
-latents run from the training latents (``latent_distance``), and ``hgpdm_dynamics`` how far
-each emotion's dynamics is from the others' one step ahead (:func:`dynamics_cross_prediction`).
+score from the real clips (``*_vertex_error``). ``cycle_strength`` averages the ranking
+function over windows started at every frame of a stride, so it no longer depends on the start
+phase; its summaries (``cycle_strength_*``) are judged by the same ``CRITERIA``. The
+H-GPDM's outputs also record how far their latents run from the training latents
+(``latent_distance``), and ``hgpdm_dynamics`` how far each emotion's dynamics is from the
+others' one step ahead (:func:`dynamics_cross_prediction`).
 ``--init phase`` fits the H-GPDM from interaction latents on one gait-phase circle shared by
 every emotion (:func:`gait_phase`). ``--rest-frames`` fits
 ``HGPDM(rest_frames=True, canonical_side=True)``, ``--periodic`` fits ``HGPDM(periodic=True)``
@@ -190,6 +193,16 @@ def summarise(outputs: list[dict], target: str | None = None) -> dict:
         "classifier_spearman": spearman(inside, p),
         "classifier_p_target_at_1": by_s.get(1.0, {}).get("classifier", {}).get("p_target"),
     }
+    cyc = [by_s[s].get("cycle_strength", {}).get("normalised") for s in inside]
+    if None not in cyc:  # stored results from before the cycle-averaged strength lack it
+        cyc = np.array(cyc)
+        out.update({"cycle_strength_spearman": spearman(inside, cyc),
+                    "cycle_strength_monotonicity": float(np.mean(np.diff(cyc) > 0)),
+                    "cycle_strength_calibration_error": float(np.mean(np.abs(
+                        cyc - np.array(inside)))),
+                    "cycle_strength_normalised": cyc.tolist()})
+        if inside[0] == 0.0 and inside[-1] == 1.0:
+            out["cycle_strength_vertex_error"] = float((abs(cyc[0]) + abs(cyc[-1] - 1.0)) / 2)
     if inside[0] == 0.0 and inside[-1] == 1.0:  # how far each end is from its real clip
         out["strength_vertex_error"] = float((abs(st[0]) + abs(st[-1] - 1.0)) / 2)
         out["axis_vertex_error"] = float((abs(ax[0]) + abs(ax[-1] - 1.0)) / 2)
@@ -434,6 +447,7 @@ class Scorers:
     classifier: LogisticRegression
     strength: object
     anchors: tuple[float, float]            # raw strength of the real neutral, emotional clip
+    cycle_anchors: tuple[float, float]      # the same, cycle-averaged (:func:`cycle_strength`)
     axis: FeatureAxis
     reference: NaturalnessReference
     model: object                            # the fitted H-GPDM, for infer_emotion
@@ -447,6 +461,8 @@ def score(motion: Motion, target: str, sc: Scorers, infer: bool) -> dict:
     classes = list(sc.classifier.classes)
     raw = sc.strength.score(motion)
     r0, r1 = sc.anchors
+    c0, c1 = sc.cycle_anchors
+    cyc, n_windows = cycle_strength(sc.strength, motion, sc.cfg)
     nat = naturalness(motion, sc.reference)
     return {
         "n_frames": motion.n_frames,
@@ -454,6 +470,8 @@ def score(motion: Motion, target: str, sc: Scorers, infer: bool) -> dict:
                        "p_neutral": float(probs[classes.index(NEUTRAL)]),
                        "predicted": classes[int(np.argmax(probs))]},
         "strength": {"raw": raw, "normalised": (raw - r0) / (r1 - r0)},
+        "cycle_strength": {"raw": cyc, "normalised": (cyc - c0) / (c1 - c0),
+                           "windows": n_windows},
         "feature_axis": sc.axis.strength(motion),
         "naturalness": {k: nat[k] for k in NATURALNESS_KEYS},
         "infer_emotion": score_infer(motion, target, sc) if infer else "not run at this s",
@@ -501,8 +519,38 @@ def fit_scorers(data: MotionDataset, content: str, emotion: str, reference, mode
                             groups=[t.labels["content"] for t in train])
     neutral, emotional = clip(data, content, NEUTRAL), clip(data, content, emotion)
     anchors = (strength.score(neutral), strength.score(emotional))
+    cycle_anchors = (cycle_strength(strength, neutral, cfg)[0],
+                     cycle_strength(strength, emotional, cfg)[0])
     axis = FeatureAxis.fit(feats, neutral, emotional)
-    return Scorers(clf, strength, anchors, axis, reference, model, cfg, cache)
+    return Scorers(clf, strength, anchors, cycle_anchors, axis, reference, model, cfg, cache)
+
+
+STRIDE_SECONDS = 1.2
+"""About one gait cycle of the Bandai walks: the windows of :func:`cycle_strength` start at
+every frame of one such span, so their mean covers every phase of the stride."""
+
+
+def cycle_window(cfg: Settings) -> int:
+    """Frames per window of :func:`cycle_strength`: the generated clips' length less one stride,
+    so a generated clip holds one window per frame of a stride."""
+    return max(4, cfg.gen_frames - int(round(STRIDE_SECONDS * cfg.fps)))
+
+
+def cycle_strength(strength, motion: Motion, cfg: Settings,
+                   offsets: range | None = None) -> tuple[float, int]:
+    """The ranking function's mean over windows of :func:`cycle_window` frames started at each
+    of ``offsets`` (default: every start the clip allows) and how many windows that is. A
+    generated clip of ``gen_frames`` frames gives one window per frame of a stride, a real clip
+    every window it holds, so the score no longer depends on where in its gait cycle the clip
+    starts, as the single-window ranking strength does (:func:`phase_sensitivity` measures
+    both). A clip shorter than a window is scored whole (one window)."""
+    w = cycle_window(cfg)
+    if motion.n_frames <= w:
+        return float(strength.score(motion)), 1
+    offsets = range(motion.n_frames - w + 1) if offsets is None else offsets
+    starts = [o for o in offsets if o + w <= motion.n_frames]
+    return float(np.mean([strength.score(motion.select(slice(o, o + w))) for o in starts])), \
+        len(starts)
 
 
 PHASE_OFFSETS = (0, 8, 16)
@@ -526,6 +574,14 @@ def phase_sensitivity(motion: Motion, sc: Scorers) -> dict:
     if len(wins) >= 2:
         out["strength_spread"] = float(np.ptp(st))
         out["feature_axis_spread"] = float(np.ptp(ax))
+    stride = int(round(STRIDE_SECONDS * sc.cfg.fps))
+    if motion.n_frames >= cycle_window(sc.cfg) + 2 * stride - 1:
+        # the cycle-averaged strength from the first stride's starts and from the next's
+        c0, c1 = sc.cycle_anchors
+        halves = [(cycle_strength(sc.strength, motion, sc.cfg, range(a, a + stride))[0] - c0)
+                  / (c1 - c0) for a in (0, stride)]
+        out["cycle_strength_halves"] = halves
+        out["cycle_strength_spread"] = float(abs(halves[1] - halves[0]))
     return out
 
 
@@ -585,6 +641,14 @@ def infer_summary(by_s: dict, target: str | None) -> dict:
     return out
 
 
+def meets_criteria(agg: dict, measure: str) -> bool:
+    """Whether a method's pair means of ``measure`` (``strength`` or ``cycle_strength``) meet
+    every one of ``CRITERIA``."""
+    return bool(agg[f"{measure}_spearman"] >= CRITERIA["spearman_min"]
+                and agg[f"{measure}_monotonicity"] >= CRITERIA["monotonicity_min"]
+                and agg[f"{measure}_calibration_error"] <= CRITERIA["calibration_error_max"])
+
+
 def aggregate(pairs: list[dict]) -> dict:
     """Per method, the mean of each scalar summary over the pairs that have it."""
     out = {}
@@ -598,10 +662,9 @@ def aggregate(pairs: list[dict]) -> dict:
         if halves:  # how many 50/50 outputs infer_emotion labels as what
             agg["infer_labels_at_half"] = {k: halves.count(k)
                                            for k in ("target", "source", "other")}
-        agg["interpolates_emotion"] = bool(sums) and (
-            agg["strength_spearman"] >= CRITERIA["spearman_min"]
-            and agg["strength_monotonicity"] >= CRITERIA["monotonicity_min"]
-            and agg["strength_calibration_error"] <= CRITERIA["calibration_error_max"])
+        agg["interpolates_emotion"] = bool(sums) and meets_criteria(agg, "strength")
+        if "cycle_strength_spearman" in agg:
+            agg["interpolates_emotion_cycle_strength"] = meets_criteria(agg, "cycle_strength")
         out[method] = agg
     return out
 
@@ -619,6 +682,12 @@ def phase_summary(pairs: list[dict]) -> dict:
         v = [c[key] for c in clips]
         out[f"{key}_median"] = float(np.median(v)) if v else None
         out[f"{key}_max"] = float(np.max(v)) if v else None
+    cyc = [p["phase_sensitivity"][k]["cycle_strength_spread"] for p in pairs
+           for k in ("neutral", "emotion")
+           if "cycle_strength_spread" in p["phase_sensitivity"][k]]
+    out["cycle_strength_spread_n_scorings"] = len(cyc)
+    out["cycle_strength_spread_median"] = float(np.median(cyc)) if cyc else None
+    out["cycle_strength_spread_max"] = float(np.max(cyc)) if cyc else None
     return out
 
 
@@ -668,6 +737,24 @@ def headlines(summary: dict, phase: dict | None = None, dynamics: dict | None = 
             f"foot sliding ratio {s['mean_foot_sliding_ratio']:.2f}; feature axis: Spearman "
             f"{s['axis_spearman']:.2f}, monotone {s['axis_monotonicity']:.2f}, calibration "
             f"error {s['axis_calibration_error']:.2f}"))
+    for m in METHODS:
+        s = summary[m]
+        if s["n_pairs"] and "cycle_strength_spearman" in s:
+            rows.append(headline(
+                f"{m}: cycle-averaged strength Spearman vs s", s["cycle_strength_spearman"],
+                "", f">= {CRITERIA['spearman_min']}",
+                s["cycle_strength_spearman"] >= CRITERIA["spearman_min"],
+                f"calibration error {s['cycle_strength_calibration_error']:.2f}, monotone "
+                f"{s['cycle_strength_monotonicity']:.2f}; ends "
+                f"{s.get('cycle_strength_vertex_error', float('nan')):.2f} from the real "
+                f"clips; all three criteria "
+                f"{'met' if s['interpolates_emotion_cycle_strength'] else 'not met'}"))
+    if phase and phase.get("cycle_strength_spread_median") is not None:
+        rows.append(headline(
+            "real clips: cycle-averaged strength, first stride's window starts against the "
+            "next stride's (median |difference|)", phase["cycle_strength_spread_median"], "",
+            "", None, f"largest {phase['cycle_strength_spread_max']:.2f}; "
+            f"{phase['cycle_strength_spread_n_scorings']} scorings"))
     if phase and phase.get("n_clips"):
         rows.append(headline(
             "real clips: spread of the normalised strength over windows started "

@@ -37,6 +37,45 @@ def test_scaled_style_runs_from_identity_to_the_fitted_style():
     assert half.posture["Spine"] == pytest.approx((2.0, -1.0, 0.0))
 
 
+class _Frames:
+    """A stand-in clip: ``n_frames`` and ``select`` over a 1-D signal."""
+
+    def __init__(self, values):
+        self.values = np.asarray(values, dtype=float)
+        self.n_frames = self.values.size
+
+    def select(self, frames):
+        return _Frames(self.values[frames])
+
+
+class _FirstFrame:
+    """A stand-in ranking function that reads only a window's first frame: as phase-dependent
+    as a score can be."""
+
+    def score(self, clip):
+        return float(clip.values[0])
+
+
+def test_cycle_strength_does_not_depend_on_where_in_its_cycle_a_clip_starts():
+    cfg = study.Settings(fps=10.0, gen_frames=40)
+    stride = round(study.STRIDE_SECONDS * cfg.fps)
+    assert study.cycle_window(cfg) == 40 - stride == 28
+    t = np.arange(200)
+    scores, single = [], []
+    for shift in range(stride):                     # the same periodic clip, started anywhere
+        clip = _Frames(np.sin(2 * np.pi * (t + shift) / stride) + 3.0)
+        score, n = study.cycle_strength(_FirstFrame(), clip, cfg, range(stride))
+        assert n == stride
+        scores.append(score)
+        single.append(_FirstFrame().score(clip))
+    np.testing.assert_allclose(scores, 3.0, atol=1e-12)
+    assert np.ptp(single) > 1.9                    # one window's score moves by the amplitude
+    # by default every start the clip allows; a clip shorter than a window is scored whole
+    clip = _Frames(np.arange(40.0))
+    assert study.cycle_strength(_FirstFrame(), clip, cfg) == (np.mean(np.arange(13.0)), 13)
+    assert study.cycle_strength(_FirstFrame(), _Frames([5.0, 6.0]), cfg) == (5.0, 1)
+
+
 def test_missing_data_writes_a_skip_record(tmp_path):
     out = tmp_path / "study.json"
     res = study.run(True, root=tmp_path / "absent", out=out)
@@ -115,7 +154,30 @@ def test_quick_study_scores_every_method_at_every_s(bandai_root, tmp_path):
             and agg["strength_monotonicity"] >= c["monotonicity_min"]
             and agg["strength_calibration_error"] <= c["calibration_error_max"])
         assert method in saved["conclusion"]
-    assert len(res["headline"]) == len(study.METHODS) + 2  # real windows, H-GPDM dynamics
+    # the cycle-averaged strength: 0 and 1 at the real clips, Amaya's identity at 0, and the
+    # mean of the windows' scores, normalised by the real clips' cycle averages
+    assert pair["real"]["neutral"]["cycle_strength"]["normalised"] == pytest.approx(0.0,
+                                                                                 abs=1e-9)
+    assert pair["real"]["emotion"]["cycle_strength"]["normalised"] == pytest.approx(1.0)
+    w = study.cycle_window(study.QUICK)
+    real = study.clip(data, "walk", "happy")
+    windows = [sc.strength.score(real.select(slice(o, o + w)))
+               for o in range(real.n_frames - w + 1)]
+    assert pair["real"]["emotion"]["cycle_strength"]["raw"] == pytest.approx(np.mean(windows))
+    assert amaya0["cycle_strength"]["normalised"] == pytest.approx(0.0, abs=1e-9)
+    for method, block in pair["methods"].items():
+        s = block["summary"]
+        inside = [o["cycle_strength"]["normalised"] for o in block["outputs"] if o["s"] <= 1]
+        assert s["cycle_strength_normalised"] == pytest.approx(inside), method
+        assert s["cycle_strength_spearman"] == pytest.approx(
+            study.spearman(study.S_VALUES[:5], inside))
+        assert saved["summary"][method]["interpolates_emotion_cycle_strength"] == (
+            study.meets_criteria(saved["summary"][method], "cycle_strength"))
+    for which in ("neutral", "emotion"):  # both real quick clips hold two strides of starts
+        ph = pair["phase_sensitivity"][which]
+        assert ph["cycle_strength_spread"] == pytest.approx(np.ptp(ph["cycle_strength_halves"]))
+    # strength, cycle-averaged strength per method; real windows (both), H-GPDM dynamics
+    assert len(res["headline"]) == 2 * len(study.METHODS) + 3
     dyn = saved["hgpdm_dynamics"]
     assert {r["trial"] for r in dyn["rows"]} == {t.name for t in study.training_set(
         data, study.QUICK)} and len(dyn["rows"]) == 2 * 2  # 2 trials x 2 levels
