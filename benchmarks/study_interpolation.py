@@ -37,9 +37,10 @@ also 0 and 1 at the real clips); (c) by the naturalness proxies of
 The ranking function reads keyframe poses and speeds, so it depends on where in the gait cycle a
 clip starts: ``phase_sensitivity`` scores windows of the real clips started 0, 8 and 16 frames
 in with both measures, and each method's summary says how far its s = 0 and s = 1 outputs
-score from the real clips (``*_vertex_error``). ``cycle_strength`` averages the ranking
-function over windows started at every frame of a stride, so it no longer depends on the start
-phase; its summaries (``cycle_strength_*``) are judged by the same ``CRITERIA``. The
+score from the real clips (``*_vertex_error``), and how fast its mixed outputs move against
+the same blend of its ends' joint speeds (``speed_vs_blend_*``). ``cycle_strength`` averages
+the ranking function over windows started at every frame of a stride, so it no longer depends
+on the start phase; its summaries (``cycle_strength_*``) are judged by the same ``CRITERIA``. The
 H-GPDM's outputs also record how far their latents run from the training latents
 (``latent_distance``), and ``hgpdm_dynamics`` how far each emotion's dynamics is from the
 others' one step ahead (:func:`dynamics_cross_prediction`).
@@ -203,6 +204,14 @@ def summarise(outputs: list[dict], target: str | None = None) -> dict:
                     "cycle_strength_normalised": cyc.tolist()})
         if inside[0] == 0.0 and inside[-1] == 1.0:
             out["cycle_strength_vertex_error"] = float((abs(cyc[0]) + abs(cyc[-1] - 1.0)) / 2)
+    speeds = [by_s[s].get("joint_speed") for s in inside]
+    if None not in speeds and inside[0] == 0.0 and inside[-1] == 1.0 and len(inside) > 2:
+        # each mixed output's joint speed against the same blend of the two ends' speeds
+        ratio = [v / ((1 - s) * speeds[0] + s * speeds[-1])
+                 for s, v in zip(inside, speeds, strict=True)]
+        out["joint_speed"] = speeds
+        out["speed_vs_blend_mixed"] = float(np.mean(ratio[1:-1]))
+        out["speed_vs_blend_min"] = float(np.min(ratio[1:-1]))
     if inside[0] == 0.0 and inside[-1] == 1.0:  # how far each end is from its real clip
         out["strength_vertex_error"] = float((abs(st[0]) + abs(st[-1] - 1.0)) / 2)
         out["axis_vertex_error"] = float((abs(ax[0]) + abs(ax[-1] - 1.0)) / 2)
@@ -440,6 +449,13 @@ class FeatureAxis:
         return float((clip_features(motion) / self.scale - self.origin) @ d / (d @ d))
 
 
+def joint_speed(motion: Motion) -> float:
+    """Mean speed of the skeleton's joints over the clip (position units per second): how
+    much the body moves, which the ranking function reads through its keyframe speeds."""
+    p = motion.positions()
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=-1).mean() * motion.fps)
+
+
 @dataclass(frozen=True, eq=False)
 class Scorers:
     """Everything one content's outputs are scored with (fitted on the other contents)."""
@@ -473,6 +489,7 @@ def score(motion: Motion, target: str, sc: Scorers, infer: bool) -> dict:
         "cycle_strength": {"raw": cyc, "normalised": (cyc - c0) / (c1 - c0),
                            "windows": n_windows},
         "feature_axis": sc.axis.strength(motion),
+        "joint_speed": joint_speed(motion),
         "naturalness": {k: nat[k] for k in NATURALNESS_KEYS},
         "infer_emotion": score_infer(motion, target, sc) if infer else "not run at this s",
     }
@@ -748,7 +765,9 @@ def headlines(summary: dict, phase: dict | None = None, dynamics: dict | None = 
                 f"{s['cycle_strength_monotonicity']:.2f}; ends "
                 f"{s.get('cycle_strength_vertex_error', float('nan')):.2f} from the real "
                 f"clips; all three criteria "
-                f"{'met' if s['interpolates_emotion_cycle_strength'] else 'not met'}"))
+                f"{'met' if s['interpolates_emotion_cycle_strength'] else 'not met'}; mixed "
+                f"outputs' joint speed {s.get('speed_vs_blend_mixed', float('nan')):.2f}x the "
+                f"blend of the ends' (lowest {s.get('speed_vs_blend_min', float('nan')):.2f})"))
     if phase and phase.get("cycle_strength_spread_median") is not None:
         rows.append(headline(
             "real clips: cycle-averaged strength, first stride's window starts against the "

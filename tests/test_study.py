@@ -171,6 +171,11 @@ def test_quick_study_scores_every_method_at_every_s(bandai_root, tmp_path):
         assert s["cycle_strength_normalised"] == pytest.approx(inside), method
         assert s["cycle_strength_spearman"] == pytest.approx(
             study.spearman(study.S_VALUES[:5], inside))
+        speeds = [o["joint_speed"] for o in block["outputs"] if o["s"] <= 1]
+        assert s["joint_speed"] == pytest.approx(speeds) and min(speeds) > 0
+        blend = [(1 - x) * speeds[0] + x * speeds[-1] for x in study.S_VALUES[:5]]
+        assert s["speed_vs_blend_mixed"] == pytest.approx(
+            np.mean(np.array(speeds[1:4]) / np.array(blend[1:4])))
         assert saved["summary"][method]["interpolates_emotion_cycle_strength"] == (
             study.meets_criteria(saved["summary"][method], "cycle_strength"))
     for which in ("neutral", "emotion"):  # both real quick clips hold two strides of starts
