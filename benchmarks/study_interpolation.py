@@ -549,7 +549,7 @@ every frame of one such span, so their mean covers every phase of the stride."""
 
 def cycle_window(cfg: Settings) -> int:
     """Frames per window of :func:`cycle_strength`: the generated clips' length less one stride,
-    so a generated clip holds one window per frame of a stride."""
+    so a generated clip holds a window started at each frame of a stride (and one more)."""
     return max(4, cfg.gen_frames - int(round(STRIDE_SECONDS * cfg.fps)))
 
 
@@ -557,10 +557,11 @@ def cycle_strength(strength, motion: Motion, cfg: Settings,
                    offsets: range | None = None) -> tuple[float, int]:
     """The ranking function's mean over windows of :func:`cycle_window` frames started at each
     of ``offsets`` (default: every start the clip allows) and how many windows that is. A
-    generated clip of ``gen_frames`` frames gives one window per frame of a stride, a real clip
-    every window it holds, so the score no longer depends on where in its gait cycle the clip
-    starts, as the single-window ranking strength does (:func:`phase_sensitivity` measures
-    both). A clip shorter than a window is scored whole (one window)."""
+    generated clip of ``gen_frames`` frames gives a window per frame of a stride (and one more),
+    a real clip every window it holds, so the score no longer depends on where in its gait
+    cycle the clip starts, as the single-window ranking strength does
+    (:func:`phase_sensitivity` measures both). A clip shorter than a window is scored whole
+    (one window)."""
     w = cycle_window(cfg)
     if motion.n_frames <= w:
         return float(strength.score(motion)), 1
@@ -767,7 +768,8 @@ def headlines(summary: dict, phase: dict | None = None, dynamics: dict | None = 
                 f"clips; all three criteria "
                 f"{'met' if s['interpolates_emotion_cycle_strength'] else 'not met'}; mixed "
                 f"outputs' joint speed {s.get('speed_vs_blend_mixed', float('nan')):.2f}x the "
-                f"blend of the ends' (lowest {s.get('speed_vs_blend_min', float('nan')):.2f})"))
+                f"blend of the ends' (each pair's lowest, averaged: "
+                f"{s.get('speed_vs_blend_min', float('nan')):.2f})"))
     if phase and phase.get("cycle_strength_spread_median") is not None:
         rows.append(headline(
             "real clips: cycle-averaged strength, first stride's window starts against the "
