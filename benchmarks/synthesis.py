@@ -281,16 +281,21 @@ def _side_windows(side: np.ndarray, at: float, ref: float, width: int) -> dict:
 
 def transition_row(model, judge: LogisticRegression, source: str, target: str, n_frames: int,
                    length: int, window: int, seed: int, lookahead: float,
-                   match: bool = False) -> dict:
+                   match: bool = False, within: int = 0) -> dict:
     """One ``source`` -> ``target`` mean rollout of ``n_frames`` frames whose ``length``-frame
     smoothstep is centred in it, measured (module docstring): the judge's probabilities in
     sliding windows, the limb motion after the switch over before it, the body-frame jerk
     in the switch window over the jerk elsewhere and over each side's (before, after, the
     jerkier of the two), and in the interaction latents the largest step in the switch window
-    over the median step elsewhere and the largest distance there from the training latents."""
+    over the median step elsewhere and the largest distance there from the training latents.
+    A matched transition with ``within`` > 0 may switch up to ``within`` frames after the
+    centre: it is measured at the frame where its style coordinates switch (``switch``)."""
     start = n_frames // 2 - length // 2
-    roll = model.generate(emotion=Transition(source, target, start, length, match),
+    roll = model.generate(emotion=Transition(source, target, start, length, match, within),
                           n_frames=n_frames, seed=seed, lookahead=lookahead)
+    if match:  # the frame the matched rollout switched at
+        start = int(np.argmax(roll.styles["emotion"][:, list(model.levels["emotion"])
+                                                      .index(target)] == 1.0))
     m = roll.to_motion()[0]
     classes = list(judge.classes)
     centres, p_src, p_tgt = [], [], []
@@ -325,7 +330,8 @@ def transition_row(model, judge: LogisticRegression, source: str, target: str, n
             **ref,
             "latent_step_switch_max_over_median": float(step[moving].max()
                                                         / np.median(step[~moving])),
-            "latent_distance_switch_max": float(near.max()), "start": roll.start}
+            "latent_distance_switch_max": float(near.max()), "start": roll.start,
+            "switch": start}
 
 
 def transitions(model, judge: LogisticRegression, cfg: Settings) -> dict:

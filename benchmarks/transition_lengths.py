@@ -10,7 +10,10 @@ frame), with the look-ahead of ``synthesis.Settings.lookahead`` and, at the synt
 benchmark's length, without it; and matched transitions
 (``Transition(..., match=True)``, :mod:`bayesmotion.model.transition`: the target continues
 from its training frame that best matches the source's last poses, the difference blended
-out) over each blend length in ``MATCHED_LENGTHS``, with the look-ahead. Each rollout is
+out) over each blend length in ``MATCHED_LENGTHS``, with the look-ahead, switching at the
+centre and with the switch searched over the ``MATCHED_WITHIN`` frames after it
+(``Transition(..., within=...)``: the frame whose last poses a target training frame matches
+best; measured where it switched). Each rollout is
 measured by :func:`synthesis.transition_row`: the judge's (the affective-feature classifier
 trained on every real clip of the synthesis benchmark's groups, as there) probability of the
 target over sliding windows; the body-frame
@@ -57,6 +60,9 @@ from bayesmotion.features import clip_features  # noqa: E402
 NAME = "transition_lengths"
 LENGTHS = (0, 10, 20, 40, 80)  # smoothstep lengths in frames (10 fps)
 MATCHED_LENGTHS = (0, 5, 10, 20)  # blend lengths of the matched transitions
+# frames after the centre a searched matched switch may come at: one gait cycle at 10 fps
+# (study_interpolation.STRIDE_SECONDS, 1.2 s)
+MATCHED_WITHIN = 12
 # no jump: the switch window jerks no more than 90% of the same-width windows of the jerkier
 # side (its rank among them <= 0.9), for every emotion
 TARGETS = {"jerk_switch_rank_max": 0.9}
@@ -66,14 +72,15 @@ KEYS = ("p_target_last_window", "jerk_switch_over_jerkier_side", "jerk_switch_ra
 
 
 def rows(model, judge: LogisticRegression, cfg, length: int, lookahead: float,
-         match: bool = False) -> dict:
+         match: bool = False, within: int = 0) -> dict:
     """emotion -> transition_row (or the generator's error) at one length and look-ahead."""
     levels = list(model.levels["emotion"])
     out = {}
     for e in levels[1:]:
         try:
             out[e] = synthesis.transition_row(model, judge, levels[0], e, cfg.transition_frames,
-                                              length, cfg.window, cfg.seed, lookahead, match)
+                                              length, cfg.window, cfg.seed, lookahead, match,
+                                              within)
         except BayesmotionError as err:
             out[e] = {"error": str(err)}
     return out
@@ -103,6 +110,8 @@ def _headline(r: dict) -> dict:
     worst = s["jerk_switch_rank"]["worst"]
     what = (f"matched transition, {r['length']}-frame blend" if r["matched"]
             else f"{r['length']}-frame transition")
+    if r.get("within"):
+        what += f", switch searched over {r['within']} frames"
     return headline(
         f"walks, {what}, look-ahead {r['lookahead']:g}: the switch window's jerk, rank among "
         f"the jerkier side's same-width windows (worst emotion)", worst, "", f"<= {limit:g}",
@@ -125,7 +134,8 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
                          "lengths": list(lengths),
                          "matched_lengths": list((0, cfg.transition_length) if quick
                                                  else MATCHED_LENGTHS),
-                         "synthesis_length": cfg.transition_length},
+                         "synthesis_length": cfg.transition_length,
+                         "matched_within": 4 if quick else MATCHED_WITHIN},
             "targets": TARGETS}
     if not bandai_present(root):
         return bandai_skip(base, root, out)
@@ -138,14 +148,16 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
         _, model, fit_s = synthesis.fit_group("walks", data, cfg.groups["walks"], cfg)
     runs = []
     matched = (0, cfg.transition_length) if quick else MATCHED_LENGTHS
-    for lookahead, length, match in ([(cfg.lookahead, n, False) for n in lengths]
-                                     + [(0.0, cfg.transition_length, False)]
-                                     + [(cfg.lookahead, n, True) for n in matched]):
-        block = rows(model, judge, cfg, length, lookahead, match)
-        runs.append({"length": length, "lookahead": lookahead, "matched": match,
+    within = 4 if quick else MATCHED_WITHIN
+    for lookahead, length, match, w in ([(cfg.lookahead, n, False, 0) for n in lengths]
+                                        + [(0.0, cfg.transition_length, False, 0)]
+                                        + [(cfg.lookahead, n, True, 0) for n in matched]
+                                        + [(cfg.lookahead, n, True, within) for n in matched]):
+        block = rows(model, judge, cfg, length, lookahead, match, w)
+        runs.append({"length": length, "lookahead": lookahead, "matched": match, "within": w,
                      "emotions": block, "summary": summary(block)})
-        print(f"[{NAME}] length {length}, look-ahead {lookahead}, matched {match}: done",
-              file=sys.stderr, flush=True)
+        print(f"[{NAME}] length {length}, look-ahead {lookahead}, matched {match}, within {w}:"
+              f" done", file=sys.stderr, flush=True)
     head = [_headline(r) for r in runs if "worst" in r["summary"]["jerk_switch_rank"]]
     result = {**base, "fit": {"seconds": fit_s, "iterations": model.diagnostics["iterations"],
                               "converged": model.diagnostics["converged"]},

@@ -197,6 +197,18 @@ def test_transition_row_measures_the_rollout_it_names(tiny_model):
     matched = synthesis.transition_row(tiny_model, judge, "happy", "sad", T, L, W, 3, 0.0, True)
     assert "the target continues training trial" in matched["start"]
     assert "continues" not in row["start"]
+    assert matched["switch"] == T // 2 - L // 2
+    # a searched switch is measured where it came: as the same rollout asked to switch there
+    searched = synthesis.transition_row(tiny_model, judge, "happy", "sad", T, L, W, 3, 0.0,
+                                        True, within=6)
+    s0 = T // 2 - L // 2
+    assert s0 <= searched["switch"] <= s0 + 6
+    there = synthesis.transition_row(tiny_model, judge, "happy", "sad",
+                                     T + 2 * (searched["switch"] - s0), L, W, 3, 0.0, True)
+    assert there["switch"] == searched["switch"]
+    # the two rollouts agree up to the switch window's end, so do the measures read there
+    assert searched["jerk_switch_over_before"] == pytest.approx(there["jerk_switch_over_before"],
+                                                                rel=1e-9)
     block = {"sad": row, "angry": {**row, "p_target_last_window": 0.1,
                                    "jerk_switch_over_jerkier_side": 9.0,
                                    "jerk_switch_rank": 1.0},

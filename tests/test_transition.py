@@ -99,8 +99,44 @@ def test_matched_rollout_samples_are_matched_path_by_path(tiny_model):
                                    rtol=1e-12, atol=1e-12)
 
 
+def test_a_searched_switch_comes_where_the_poses_match_best(tiny_model):
+    """``within``: the switch frame is the one in ``start .. start + within`` whose last poses a
+    target training frame matches best (checked against every frame of the window one by
+    one), never worse matched than the switch at ``start``; the rollout from there is the
+    matched transition that starts at that frame."""
+    m = tiny_model
+    o, n, s0, W = m.spec.order, 16, 5, 6
+    src = m.generate(emotion="happy", n_frames=s0 + W)
+    sad = {"emotion": np.array([0.0, 1.0]), "couple": np.array([1.0])}
+    dist = {s: match_frame(m, src.Y[:, s - o - 1:s], sad)[2] for s in range(s0, s0 + W + 1)}
+    best = min(dist, key=dist.get)
+    assert best != s0  # the window has a better match than its first frame
+    searched = m.generate(emotion=bm.Transition("happy", "sad", s0, 2, match=True, within=W),
+                          n_frames=n)
+    switch = int(np.argmax(searched.styles["emotion"][:, 1] == 1.0))
+    assert switch == best and dist[best] <= dist[s0]
+    assert f"from frame {best} " in searched.start
+    at = m.generate(emotion=bm.Transition("happy", "sad", best, 2, match=True), n_frames=n)
+    np.testing.assert_allclose(searched.Y, at.Y, atol=1e-12)
+    np.testing.assert_allclose(searched.I, at.I, atol=1e-12)
+    # within=0 is the switch at start
+    zero = m.generate(emotion=bm.Transition("happy", "sad", s0, 2, match=True, within=0),
+                      n_frames=n)
+    plain = m.generate(emotion=bm.Transition("happy", "sad", s0, 2, match=True), n_frames=n)
+    np.testing.assert_array_equal(zero.Y, plain.Y)
+    # sampled paths search their own switch frames and stay whole
+    r = m.generate(emotion=bm.Transition("happy", "sad", s0, 2, match=True, within=W),
+                   n_frames=n, n_samples=2, seed=3)
+    assert r.samples["Y"].shape[-2] == n and np.all(np.isfinite(r.samples["positions"]))
+
+
 @pytest.mark.parametrize("kwargs, words", [
     ({"emotion": bm.Transition("happy", [0.0, 1.0], 6, 2, match=True)}, "level name"),
+    ({"emotion": bm.Transition("happy", "sad", 6, 2, match=True, within=6)}, "within must be"),
+    ({"emotion": bm.Transition("happy", "sad", 6, 2, match=True, within=-1)}, "within must be"),
+    ({"emotion": bm.Transition("happy", "sad", 6, 2, match=True, within=2.0)},
+     "within must be"),
+    ({"emotion": bm.Transition("happy", "sad", 6, 2, within=3)}, "needs match=True"),
     ({"emotion": bm.Transition("happy", "sad", 2, 2, match=True)}, "start must be"),
     ({"emotion": bm.Transition("happy", "sad", 12, 2, match=True)}, "start must be"),
     ({"emotion": bm.Transition("happy", "sad", 6, -1, match=True)}, "length"),

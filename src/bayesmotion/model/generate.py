@@ -61,7 +61,11 @@ class Transition(NamedTuple):
     With ``match=True`` the rollout instead follows ``source`` up to frame ``start`` and then
     continues from the training frame of ``target`` (a level name) whose poses best match its
     last frames, and the pose difference at the switch is blended out over ``length`` frames
-    (:mod:`bayesmotion.model.transition`).
+    (:mod:`bayesmotion.model.transition`). ``within`` (matched only) lets the switch come at
+    any frame from ``start`` to ``start + within``: the one whose last poses a target training
+    frame matches best, as motion graphs take their transitions at the minima of the pose
+    distance (e.g. ``within`` = one gait cycle, so the switch finds the step phase where the
+    two emotions' poses are closest).
     """
 
     source: object
@@ -69,6 +73,7 @@ class Transition(NamedTuple):
     start: int
     length: int
     match: bool = False
+    within: int = 0
 
 
 def style_coords(model, factor, value) -> np.ndarray:
@@ -93,6 +98,9 @@ def resolve_style(model, factor: str, value, n_frames: int) -> np.ndarray:
         a, b = style_coords(model, factor, value.source), style_coords(model, factor, value.target)
         if value.length < 0:
             raise BayesmotionError(f"a Transition's length must be >= 0, got {value.length}")
+        if value.within and not value.match:
+            raise BayesmotionError(f"a Transition's within={value.within!r} searches for the "
+                                   f"best-matched switch frame: it needs match=True")
         f = np.arange(n_frames) - value.start
         t = (np.clip(f / value.length, 0.0, 1.0) if value.length > 0 and not value.match
              else (f >= 0).astype(np.float64))

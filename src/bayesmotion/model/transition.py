@@ -9,8 +9,11 @@ from two:
    normalised pose space and summed over actors and frames, to the source rollout's last
    ``order + 1`` poses -- the transition points of motion graphs (Kovar, Gleicher & Pighin
    2002), searched over every target frame;
+   With ``within = W > 0`` the source rollout runs on to frame ``start + W`` and the switch
+   frame ``s`` is searched too: every ``s`` in ``start .. start + W`` against every target
+   frame, the pair with the smallest distance taken;
 3. the rollout of ``target`` started from the training latents ``I[j - order + 1 .. j]``,
-   whose generated frames become frames ``start ..`` of the result;
+   whose generated frames become frames ``s ..`` of the result;
 4. the **blend**: the difference between the two rollouts at the switch (pose and velocity
    of the last source frame against the matched target frame, per pose channel) is added to
    the target's first ``length`` frames and decays to zero along the quintic that starts
@@ -109,8 +112,23 @@ def _splice_poses(src_Y: np.ndarray, tgt_Y: np.ndarray, start: int, o: int,
     return out
 
 
+def match_switch(model, Y: np.ndarray, first: int, last: int,
+                 target_coords: dict) -> tuple[int, int, int, float]:
+    """(switch frame s, trial, frame within it, squared distance): over every switch frame
+    ``s`` in ``first .. last`` (the source poses ``Y`` (A, >= last, D) before ``s`` are matched),
+    the one whose :func:`match_frame` is nearest; the earliest on a tie."""
+    m = model.spec.order + 1
+    best = None
+    for s in range(first, last + 1):
+        r, j, d = match_frame(model, Y[:, s - m:s], target_coords)
+        if best is None or d < best[3]:
+            best = (s, r, j, d)
+    return best
+
+
 def check_matched(model, t: Transition, n_frames: int) -> int:
-    """The switch frame of a matched Transition, checked against the model and the length."""
+    """The first switch frame of a matched Transition, checked against the model and the
+    length (the last is that plus ``t.within``)."""
     o = model.spec.order
     if not isinstance(t.target, str):
         raise BayesmotionError("a matched Transition's target must be a level name (it is "
@@ -124,6 +142,11 @@ def check_matched(model, t: Transition, n_frames: int) -> int:
             or t.length < 0:
         raise BayesmotionError(f"a Transition's length must be an integer >= 0, got "
                                f"{t.length!r}")
+    if isinstance(t.within, bool) or not isinstance(t.within, int | np.integer) \
+            or not 0 <= t.within <= n_frames - 1 - t.start:
+        raise BayesmotionError(f"a matched Transition's within must be an integer in "
+                               f"[0, {n_frames - 1 - t.start}] (the switch comes at frame "
+                               f"{n_frames - 1} at the latest), got {t.within!r}")
     return int(t.start)
 
 
@@ -132,7 +155,7 @@ def matched_transition(model, factor: str, t: Transition, n_frames: int, n_sampl
                        sample_memory: int = 0, **styles) -> Rollout:
     """The rollout of a matched Transition of style factor ``factor`` (module docstring);
     ``styles`` holds every other factor's value, as given to ``generate``."""
-    s = check_matched(model, t, n_frames)
+    s0 = check_matched(model, t, n_frames)
     o = model.spec.order
     common = {"seed": seed, "lookahead": lookahead, "sample_memory": sample_memory}
 
@@ -140,35 +163,44 @@ def matched_transition(model, factor: str, t: Transition, n_frames: int, n_sampl
         return generate(model, n_frames=frames, n_samples=n, start=first,
                         **{**styles, factor: value}, **{**common, **kw})
 
-    src = run(t.source, s, start, n_samples)
-    coords = {f: resolve_style(model, f, styles.get(f, model.levels[f][0]) if f != factor
-                               else t, n_frames) for f in model.spec.factors
-              if f in model.levels}
-    target_coords = {f: c[-1] for f, c in coords.items()}
-    trial0 = start_trial(model, {f: c[:1] for f, c in coords.items()}, start)
+    # the source runs to the last frame the switch may come at
+    src = run(t.source, s0 + t.within, start, n_samples)
+
+    def style_coords(switch):
+        return {f: resolve_style(model, f, styles.get(f, model.levels[f][0]) if f != factor
+                                 else t._replace(start=switch), n_frames)
+                for f in model.spec.factors if f in model.levels}
+
+    target_coords = {f: c[-1] for f, c in style_coords(s0).items()}
     slices = model.trial_slices()
 
     def continue_from(Y, n, seed_k):
-        r, j, dist = match_frame(model, Y[:, s - o - 1:s], target_coords)
+        s, r, j, dist = match_switch(model, Y, s0, s0 + t.within, target_coords)
         I0 = np.asarray(model.params["I"][slices[r]])[j - o + 1:j + 1]
         tgt = run(t.target, n_frames - s + o, I0, n, seed=seed_k)
-        return tgt, (r, j, dist)
+        return tgt, (s, r, j, dist)
 
-    tgt, (r, j, dist) = continue_from(src.Y, 0, seed)
+    def cut(a, b, s):
+        return np.concatenate([a[..., :s, :], b[..., o:, :]], axis=-2)
+
+    tgt, (s, r, j, dist) = continue_from(src.Y, 0, seed)
+    # the style coordinates switch where the mean rollout does
+    coords = style_coords(s)
+    trial0 = start_trial(model, {f: c[:1] for f, c in coords.items()}, start)
     Y = _splice_poses(src.Y, tgt.Y, s, o, t.length)
-    cut = lambda a, b: np.concatenate([a[..., :s, :], b[..., o:, :]], axis=-2)  # noqa: E731
-    mean = decode_mean(model, cut(src.X, tgt.X), cut(src.X_var, tgt.X_var)[..., 0], Y,
-                       cut(src.Y_var, tgt.Y_var)[..., 0], trial0)
+    mean = decode_mean(model, cut(src.X, tgt.X, s), cut(src.X_var, tgt.X_var, s)[..., 0], Y,
+                       cut(src.Y_var, tgt.Y_var, s)[..., 0], trial0)
     I = np.concatenate([src.I[:s], tgt.I[o:]])
     I_var = np.concatenate([src.I_var[:s], tgt.I_var[o:]])
     samples = sample_var = None
     if n_samples:
         paths = {"I": [], "X": [], "Y": []}
-        for k in range(n_samples):
-            tk, _ = continue_from(src.samples["Y"][k], 1, seed + 1 + k)
-            paths["I"].append(np.concatenate([src.samples["I"][k, :s], tk.samples["I"][0, o:]]))
-            paths["X"].append(cut(src.samples["X"][k], tk.samples["X"][0]))
-            paths["Y"].append(_splice_poses(src.samples["Y"][k], tk.samples["Y"][0], s, o,
+        for k in range(n_samples):  # each path at its own best switch frame
+            tk, (sk, *_) = continue_from(src.samples["Y"][k], 1, seed + 1 + k)
+            paths["I"].append(np.concatenate([src.samples["I"][k, :sk],
+                                              tk.samples["I"][0, o:]]))
+            paths["X"].append(cut(src.samples["X"][k], tk.samples["X"][0], sk))
+            paths["Y"].append(_splice_poses(src.samples["Y"][k], tk.samples["Y"][0], sk, o,
                                             t.length))
         samples = {k: np.stack(v) for k, v in paths.items()}
         samples.update(decode_samples(model, samples["Y"], trial0))
