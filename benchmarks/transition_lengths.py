@@ -24,7 +24,10 @@ from window to window: a typical window of that side ranks about 0.5); the large
 in the switch window over the median step elsewhere, and how far from the training latents
 the rollout runs there. ``TARGETS``: #34's "no jump in jerk at the switch", read as a rank of
 at most 0.9 for every emotion: the switch jerks no more than the jerkier side's 90th
-percentile window. ``run(quick)`` writes ``results/transition_lengths.json`` atomically.
+percentile window; and the emotion changes: the judge's p(target) in the last window at least
+0.5 for every emotion (a transition that never reaches its target cannot jump to it).
+``run(quick)`` writes ``results/transition_lengths.json`` atomically; ``rescore()`` rewrites
+its headlines from the stored runs (with ``rescored_utc``), measuring nothing again.
 """
 
 from __future__ import annotations
@@ -65,7 +68,7 @@ MATCHED_LENGTHS = (0, 5, 10, 20)  # blend lengths of the matched transitions
 MATCHED_WITHIN = 12
 # no jump: the switch window jerks no more than 90% of the same-width windows of the jerkier
 # side (its rank among them <= 0.9), for every emotion
-TARGETS = {"jerk_switch_rank_max": 0.9}
+TARGETS = {"jerk_switch_rank_max": 0.9, "p_target_last_window_min": 0.5}
 KEYS = ("p_target_last_window", "jerk_switch_over_jerkier_side", "jerk_switch_rank",
         "jerk_side_windows_q90", "jerk_switch_over_elsewhere",
         "latent_step_switch_max_over_median", "latent_distance_switch_max")
@@ -101,9 +104,11 @@ def summary(block: dict) -> dict:
 
 def _headline(r: dict) -> dict:
     """One run's row: the worst emotion's switch-window rank among the jerkier side's
-    same-width windows (the target), each emotion's ratio, that side's 90th percentile and
-    the judge's p(target) in the last window in the note."""
+    same-width windows (the target, met only where every emotion also takes: ``TARGETS``),
+    each emotion's ratio, that side's 90th percentile and the judge's p(target) in the last
+    window in the note."""
     s, limit = r["summary"], TARGETS["jerk_switch_rank_max"]
+    p_min = TARGETS["p_target_last_window_min"]
     ratio, q90 = (s[k]["per_emotion"] for k in ("jerk_switch_over_jerkier_side",
                                                 "jerk_side_windows_q90"))
     rank, p = s["jerk_switch_rank"]["per_emotion"], s["p_target_last_window"]["per_emotion"]
@@ -114,11 +119,28 @@ def _headline(r: dict) -> dict:
         what += f", switch searched over {r['within']} frames"
     return headline(
         f"walks, {what}, look-ahead {r['lookahead']:g}: the switch window's jerk, rank among "
-        f"the jerkier side's same-width windows (worst emotion)", worst, "", f"<= {limit:g}",
-        worst <= limit and len(rank) == len(ratio),
+        f"the jerkier side's same-width windows (worst emotion)", worst, "",
+        f"<= {limit:g}, every p(target) >= {p_min:g}",
+        worst <= limit and len(rank) == len(ratio) == len(p) and min(p.values()) >= p_min,
         "; ".join(f"{e}: jerk {ratio[e]:.2f}x the jerkier side's (its windows' 90th "
                   f"percentile {q90[e]:.2f}x), rank {rank[e]:.2f}, p(target) last window "
                   f"{p[e]:.2f}" for e in rank))
+
+
+def rescore(path: str | Path | None = None) -> dict:
+    """Rewrite a stored result's targets and headlines from its runs (nothing measured again),
+    atomically, with ``rescored_utc``."""
+    import json
+    from datetime import UTC, datetime
+
+    path = Path(path) if path is not None else RESULTS / f"{NAME}.json"
+    stored = json.loads(path.read_text())
+    stored["targets"] = TARGETS
+    stored["headline"] = [_headline(r) for r in stored["runs"]
+                          if "worst" in r["summary"]["jerk_switch_rank"]]
+    stored["rescored_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
+    write_json(path, stored)
+    return stored
 
 
 def run(quick: bool, root: str | Path | None = None, out: str | Path | None = None) -> dict:

@@ -223,6 +223,32 @@ def test_transition_row_measures_the_rollout_it_names(tiny_model):
     assert s["p_target_last_window"]["worst"] == min(0.1, row["p_target_last_window"])
 
 
+def test_a_transition_meets_the_no_jump_target_only_where_every_emotion_takes(tmp_path):
+    """The switch window's rank alone is met by a transition that never reaches its target;
+    the headline also asks every emotion's p(target) in the last window to reach 0.5, and
+    ``rescore`` rewrites a stored file's headlines that way without measuring again."""
+    def row(rank, p):
+        return {"p_target_last_window": p, "jerk_switch_over_jerkier_side": 1.0,
+                "jerk_switch_rank": rank, "jerk_side_windows_q90": 1.1,
+                "jerk_switch_over_elsewhere": 1.0, "latent_step_switch_max_over_median": 1.0,
+                "latent_distance_switch_max": 0.1}
+
+    taken = {"happy": row(0.6, 0.87), "sad": row(0.3, 0.93)}
+    stuck = {"happy": row(0.4, 0.09), "sad": row(0.3, 0.93)}
+    runs = [{"length": 10, "lookahead": 10.0, "matched": m, "within": w, "emotions": b,
+             "summary": transition_lengths.summary(b)}
+            for m, w, b in ((True, 12, taken), (False, 0, stuck))]
+    heads = [transition_lengths._headline(r) for r in runs]
+    assert [h["met"] for h in heads] == [True, False]
+    assert heads[1]["value"] == 0.4  # the rank is fine: the happy walk never became happy
+    assert "switch searched over 12 frames" in heads[0]["metric"]
+    path = tmp_path / "t.json"
+    path.write_text(json.dumps({"runs": runs, "headline": [], "targets": {}}))
+    out = transition_lengths.rescore(path)
+    assert [h["met"] for h in out["headline"]] == [True, False] and "rescored_utc" in out
+    assert json.loads(path.read_text())["runs"] == runs
+
+
 def _handshakes(ratios: dict) -> dict:
     rows = {e: {"min_hand_distance": 6.7, "latent_range": 1.2, "motion_last_over_first": v,
                 "finite": True} if v is not None else {"error": "diverged"}
