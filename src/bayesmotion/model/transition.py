@@ -8,10 +8,10 @@ from two:
    given) whose last ``order + 1`` poses ``Y[j - order .. j]`` are nearest, in the model's
    normalised pose space and summed over actors and frames, to the source rollout's last
    ``order + 1`` poses -- the transition points of motion graphs (Kovar, Gleicher & Pighin
-   2002), searched over every target frame;
-   With ``within = W > 0`` the source rollout runs on to frame ``start + W`` and the switch
-   frame ``s`` is searched too: every ``s`` in ``start .. start + W`` against every target
-   frame, the pair with the smallest distance taken;
+   2002), searched over every target frame; with ``within = W > 0`` the source rollout runs
+   on to frame ``start + W`` and the switch frame ``s`` is searched too: every ``s`` in
+   ``start .. start + W`` against every target frame, the pair with the smallest distance
+   taken;
 3. the rollout of ``target`` started from the training latents ``I[j - order + 1 .. j]``,
    whose generated frames become frames ``s ..`` of the result;
 4. the **blend**: the difference between the two rollouts at the switch (pose and velocity
@@ -166,12 +166,12 @@ def matched_transition(model, factor: str, t: Transition, n_frames: int, n_sampl
     # the source runs to the last frame the switch may come at
     src = run(t.source, s0 + t.within, start, n_samples)
 
-    def style_coords(switch):
+    def coords_switching_at(switch):
         return {f: resolve_style(model, f, styles.get(f, model.levels[f][0]) if f != factor
                                  else t._replace(start=switch), n_frames)
                 for f in model.spec.factors if f in model.levels}
 
-    target_coords = {f: c[-1] for f, c in style_coords(s0).items()}
+    target_coords = {f: c[-1] for f, c in coords_switching_at(s0).items()}
     slices = model.trial_slices()
 
     def continue_from(Y, n, seed_k):
@@ -185,7 +185,7 @@ def matched_transition(model, factor: str, t: Transition, n_frames: int, n_sampl
 
     tgt, (s, r, j, dist) = continue_from(src.Y, 0, seed)
     # the style coordinates switch where the mean rollout does
-    coords = style_coords(s)
+    coords = coords_switching_at(s)
     trial0 = start_trial(model, {f: c[:1] for f, c in coords.items()}, start)
     Y = _splice_poses(src.Y, tgt.Y, s, o, t.length)
     mean = decode_mean(model, cut(src.X, tgt.X, s), cut(src.X_var, tgt.X_var, s)[..., 0], Y,
