@@ -72,6 +72,7 @@ BENCHMARKS = [
     "independence_refit",
     "walker_batching",
     "builtin_mixing",
+    "chain_file",
 ]
 TIMEOUT_S = {"quick": 20 * 60, "full": 90 * 60}
 

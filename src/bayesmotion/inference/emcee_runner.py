@@ -15,9 +15,11 @@ from bayesmotion.inference.chainfile import (
     REFIT_ATTR,
     ChainFile,
     check_chain_file,
+    committing,
     h5_errors,
     open_h5,
     refit_attr,
+    write_h5,
 )
 from bayesmotion.inference.moves import StyleShear
 from bayesmotion.inference.posterior import format_seconds, posterior_from_chain
@@ -195,24 +197,25 @@ def run_emcee(target, centre, n_walkers, n_steps, burn, thin, seed, backend, pro
     pace = Pace(max(0, n_steps - done), progress)
     t0 = time.perf_counter()
     ran = []  # (moves, steps) of each phase run by this call
-    for end, which in phases:
-        if done >= end:
-            continue
-        used = phase_moves(which)
-        ran.append((used, end - done))
-        sampler = emcee.EnsembleSampler(W, target.ndim, log_prob, vectorize=True, backend=be,
-                                        moves=used)
-        label = {"desc": _label(which, W, n_adapt)}
-        if done:
-            state = sampler._previous_state
-        else:
-            start = start_points(target, centre, W, init, ball, np.random.default_rng(seed),
-                                  cov)
-            state = _initial_state(start, seed)
-        for _ in sampler.sample(state, iterations=end - done, progress=progress,
-                                progress_kwargs=label):
-            pace.step()
-        done = end
+    with committing(be):  # a stopped run keeps its steps
+        for end, which in phases:
+            if done >= end:
+                continue
+            used = phase_moves(which)
+            ran.append((used, end - done))
+            sampler = emcee.EnsembleSampler(W, target.ndim, log_prob, vectorize=True,
+                                            backend=be, moves=used)
+            label = {"desc": _label(which, W, n_adapt)}
+            if done:
+                state = sampler._previous_state
+            else:
+                start = start_points(target, centre, W, init, ball,
+                                      np.random.default_rng(seed), cov)
+                state = _initial_state(start, seed)
+            for _ in sampler.sample(state, iterations=end - done, progress=progress,
+                                    progress_kwargs=label):
+                pace.step()
+            done = end
     seconds = time.perf_counter() - t0
     info = {"seconds": seconds, "pace": pace.info, "factorised": False, **phase_stats(ran)}
     if independence:
@@ -252,7 +255,7 @@ def _adapt_record(backend, done: int, n_adapt: int | None) -> int:
         return 0
     if done:
         return stored
-    with open_h5(backend, "a") as f, h5_errors(backend, "write"):
+    with write_h5(backend) as f, h5_errors(backend, "write"):
         f["mcmc"].attrs[ADAPT_ATTR] = n_adapt
     return n_adapt
 
@@ -273,7 +276,7 @@ def _refit_record(backend, done: int, n_adapt: int, refits: list[int] | None) ->
                     f"{n_adapt}-step adaptation; the file was not written by this package: use "
                     f"another file")
             return stored
-    with open_h5(backend, "a") as f, h5_errors(backend, "write"):
+    with write_h5(backend) as f, h5_errors(backend, "write"):
         f["mcmc"].attrs[REFIT_ATTR] = np.asarray(refits, dtype=np.int64)
     return refits
 
@@ -281,7 +284,7 @@ def _refit_record(backend, done: int, n_adapt: int, refits: list[int] | None) ->
 def planned_adapt(backend, n_steps: int) -> int:
     """The adaptation length a run will use: a resumed file's, else this run's."""
     if backend is not None and os.path.exists(str(backend)):
-        # waits for a reader's lock; names a foreign or damaged file
+        # waits for another process writing the file itself; names a foreign or damaged file
         with open_h5(backend, "r") as f, h5_errors(backend):
             attrs = f["mcmc"].attrs if "mcmc" in f else {}
             if ADAPT_ATTR in attrs and int(attrs.get("iteration", 0)) > 0:
@@ -339,16 +342,17 @@ def run_factorised(target, centre, n_walkers, n_steps, burn, thin, seed, backend
     gen_up = s_up.sample(init_up, iterations=max(0, n_steps - done_up), progress=progress,
                          progress_kwargs={"desc": f"emcee, factorised ({W} walkers)"})
     gen_bot = s_bot.sample(init_bot, iterations=max(0, n_bot - done_bot))
-    for t in range(done_up, n_steps):  # interleaved, so a killed run leaves both files current
-        next(gen_up)
-        while done_bot < min(n_bot, t // gamma_every + 1):
-            next(gen_bot)
-            done_bot += 1
-        pace.step()
-    for _ in gen_bot:  # the bottom steps still missing when the upper chain was complete
-        pass
-    for _ in gen_up:  # close the generators (each saves a step before it yields it)
-        pass
+    with committing(be_up, be_bot):  # a stopped run keeps its steps
+        for t in range(done_up, n_steps):  # interleaved: a killed run resumes either group
+            next(gen_up)
+            while done_bot < min(n_bot, t // gamma_every + 1):
+                next(gen_bot)
+                done_bot += 1
+            pace.step()
+        for _ in gen_bot:  # the bottom steps still missing when the upper chain was complete
+            pass
+        for _ in gen_up:  # close the generators (each saves a step before it yields it)
+            pass
     seconds = time.perf_counter() - t0
     c_up, c_bot = s_up.get_chain()[:n_steps], s_bot.get_chain()[:n_bot]
     l_up, l_bot = s_up.get_log_prob()[:n_steps], s_bot.get_log_prob()[:n_bot]

@@ -32,8 +32,9 @@ def sample_posterior(fitted, n_walkers: int | None = None, n_steps: int = 2000,
         seed: seeds the walker ball, the moves and NUTS.
         backend: path of an emcee HDF5 file. An existing file with the same dimensions is resumed
             from its last step until it holds ``n_steps`` steps (nothing already saved is lost).
-            Other processes may read it meanwhile: a save waits for their lock
-            (:mod:`bayesmotion.inference.chainfile`).
+            The file is never half-written: each save replaces it with a complete copy, so a run
+            killed at any moment resumes from its last save; other processes may read it
+            meanwhile (:mod:`bayesmotion.inference.chainfile`).
         progress: progress bars.
         method: "emcee" or "nuts".
         n_chains: NUTS chains.
