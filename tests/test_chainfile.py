@@ -136,7 +136,10 @@ DIE_WHILE_WRITING = textwrap.dedent("""
     import os, signal, sys
     import h5py
     sys.path.insert(0, sys.argv[3])
+    from bayesmotion.inference import chainfile
     from tests.test_chainfile import run
+
+    chainfile.COMMIT_RATIO = 0.0  # every step commits: the kill point is the same every time
 
     setattr_, writes = h5py.AttributeManager.__setitem__, [0]
 
@@ -164,7 +167,8 @@ def test_a_run_killed_inside_a_write_leaves_a_file_that_resumes(tmp_path, die_at
                           capture_output=True, text=True)
     assert proc.returncode == -9, proc.stderr[-2000:]  # killed where it meant to be
     kept = chainfile.check_chain_file(h5).get("mcmc")  # complete and consistent
-    assert (kept is None) == (die_at == 1) and (kept or 0) < 60
+    # the first write creates the file; then each step's commit adds one
+    assert kept == (None if die_at == 1 else die_at - 2)
     resumed = run(h5, 60)
     whole = run(tmp_path / "whole.h5", 60)
     np.testing.assert_array_equal(resumed.chains, whole.chains)  # bit for bit
@@ -220,3 +224,29 @@ def test_saved_steps_are_committed_in_batches_that_reads_see(tmp_path, monkeypat
     state = np.random.RandomState()
     state.set_state(tuple(on_disk.random_state))
     np.testing.assert_array_equal(state.get_state()[1], rows[-1].random_state[1])
+
+
+def test_a_failed_commit_loses_nothing(tmp_path, monkeypatch):
+    monkeypatch.setattr(chainfile, "COMMIT_RATIO", 1e12)
+    be = ChainFile(str(tmp_path / "chain.h5"))
+    be.reset(4, 2)
+    be.grow(3, None)
+    rng = np.random.default_rng(1)
+    rows = [emcee.State(rng.normal(size=(4, 2)), log_prob=rng.normal(size=4),
+                        random_state=np.random.RandomState(i).get_state()) for i in range(3)]
+    for r in rows:
+        be.save_step(r, np.ones(4, dtype=bool))
+    copy = chainfile.shutil.copyfile
+
+    def full_disk(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(chainfile.shutil, "copyfile", full_disk)
+    with pytest.raises(BayesmotionError, match="cannot write this HDF5 chain file .*No space"):
+        be.commit()
+    assert emcee.backends.HDFBackend(be.filename, read_only=True).iteration == 1  # as it was
+    assert [p.name for p in tmp_path.iterdir()] == ["chain.h5"]  # no copy left behind
+    monkeypatch.setattr(chainfile.shutil, "copyfile", copy)
+    be.commit()  # the held steps, once there is room
+    np.testing.assert_array_equal(emcee.backends.HDFBackend(be.filename, read_only=True)
+                                  .get_chain(), np.stack([r.coords for r in rows]))

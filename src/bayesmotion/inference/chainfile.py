@@ -348,7 +348,7 @@ class ChainFile(emcee.backends.HDFBackend):
     @contextlib.contextmanager
     def _writing(self):
         """emcee's write access: a copy of the file (:func:`write_h5`), its group checked."""
-        with write_h5(self.filename) as f, h5_errors(self.filename, "write"):
+        with h5_errors(self.filename, "write"), write_h5(self.filename) as f:
             if self.name in f:
                 check_layout(f, self.name, self.filename)
                 if not self.dtype_set and "chain" in f[self.name]:
@@ -361,7 +361,7 @@ class ChainFile(emcee.backends.HDFBackend):
         if not self._pending:
             return
         t0 = time.perf_counter()
-        rows, self._pending = self._pending, []
+        rows = self._pending  # a failed write leaves them held, and the file as it was
         with self._writing() as f:
             g = f[self.name]
             it, n = int(g.attrs["iteration"]), len(rows)
@@ -373,6 +373,7 @@ class ChainFile(emcee.backends.HDFBackend):
             for i, v in enumerate(rows[-1][4]):
                 g.attrs[f"random_state_{i}"] = v
             g.attrs["iteration"] = it + n
+        self._pending = []
         self._committed_at = time.perf_counter()
         self._commit_seconds = self._committed_at - t0
 
