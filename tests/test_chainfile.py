@@ -250,3 +250,83 @@ def test_a_failed_commit_loses_nothing(tmp_path, monkeypatch):
     be.commit()  # the held steps, once there is room
     np.testing.assert_array_equal(emcee.backends.HDFBackend(be.filename, read_only=True)
                                   .get_chain(), np.stack([r.coords for r in rows]))
+
+
+def _held(tmp_path, monkeypatch, n=3, name="chain.h5"):
+    """A ChainFile holding ``n`` saved steps, the first of them committed."""
+    monkeypatch.setattr(chainfile, "COMMIT_RATIO", 1e12)
+    be = ChainFile(str(tmp_path / name))
+    be.reset(4, 2)
+    be.grow(n, None)
+    rng = np.random.default_rng(2)
+    rows = [emcee.State(rng.normal(size=(4, 2)), log_prob=rng.normal(size=4),
+                        random_state=np.random.RandomState(i).get_state()) for i in range(n)]
+    for r in rows:
+        be.save_step(r, np.ones(4, dtype=bool))
+    return be, rows
+
+
+def test_a_commit_interrupted_after_the_file_was_replaced_is_not_written_twice(tmp_path,
+                                                                               monkeypatch):
+    be, rows = _held(tmp_path, monkeypatch)
+    fsync, calls = chainfile.os.fsync, []
+
+    def interrupted(fd):  # the copy's fsync, then the folder's, after the file was replaced
+        calls.append(fd)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return fsync(fd)
+
+    monkeypatch.setattr(chainfile.os, "fsync", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        be.commit()
+    monkeypatch.setattr(chainfile.os, "fsync", fsync)
+    assert be.iteration == 3
+    be.commit()  # what the runner does as the interrupt goes on
+    on_disk = emcee.backends.HDFBackend(be.filename, read_only=True)
+    assert on_disk.iteration == 3
+    np.testing.assert_array_equal(on_disk.accepted, [3, 3, 3, 3])
+    np.testing.assert_array_equal(on_disk.get_chain(), np.stack([r.coords for r in rows]))
+
+
+def test_a_file_another_run_wrote_meanwhile_is_refused(tmp_path, monkeypatch):
+    be, _ = _held(tmp_path, monkeypatch)
+    other = ChainFile(be.filename)
+    other.save_step(emcee.State(np.zeros((4, 2)), log_prob=np.zeros(4),
+                                random_state=np.random.RandomState(9).get_state()),
+                    np.ones(4, dtype=bool))  # its first step commits: the file holds 2
+    with pytest.raises(BayesmotionError, match="holds 2 steps where this run saved 1: another"):
+        be.commit()
+    assert emcee.backends.HDFBackend(be.filename, read_only=True).iteration == 2
+
+
+def test_a_chain_file_behind_a_symbolic_link_is_written_through_it(tmp_path, monkeypatch):
+    (tmp_path / "runs").mkdir()
+    link = tmp_path / "chain.h5"
+    link.symlink_to(tmp_path / "runs" / "chain.h5")
+    be, rows = _held(tmp_path, monkeypatch)  # ChainFile("tmp/chain.h5"), the link
+    be.commit()
+    assert link.is_symlink()
+    target = emcee.backends.HDFBackend(str(tmp_path / "runs" / "chain.h5"), read_only=True)
+    np.testing.assert_array_equal(target.get_chain(), np.stack([r.coords for r in rows]))
+
+
+def test_committing_saves_every_file_and_lets_the_first_error_go_on(tmp_path, monkeypatch):
+    good, rows = _held(tmp_path, monkeypatch, name="good.h5")
+    bad, _ = _held(tmp_path, monkeypatch, name="bad.h5")
+    commit = ChainFile.commit
+
+    def failing(be):
+        if be is bad:
+            raise BayesmotionError("disk full")
+        return commit(be)
+
+    monkeypatch.setattr(ChainFile, "commit", failing)
+    with pytest.raises(KeyboardInterrupt):  # the error that stopped the run, not the commit's
+        with chainfile.committing(bad, good):
+            raise KeyboardInterrupt
+    assert emcee.backends.HDFBackend(good.filename, read_only=True).iteration == 3
+    good2, _ = _held(tmp_path, monkeypatch, name="good2.h5")
+    with pytest.raises(BayesmotionError, match="disk full"), chainfile.committing(bad, good2):
+        pass
+    assert emcee.backends.HDFBackend(good2.filename, read_only=True).iteration == 3

@@ -24,11 +24,14 @@ backend (``get_chain``, ``get_last_sample``, ...) commits first, and so do the p
 runners when they stop, also on an error or ``KeyboardInterrupt``. Another process reading the
 file sees the committed steps.
 
-Readers and the writer never wait for each other: the writer opens only its copy. A reader
-still waits for another process that holds the file itself open for writing (a script of the
-user's), instead of failing with ``BlockingIOError`` or, as emcee's own ``initialized`` does,
-taking the locked file for an empty one that a resumed run would reset. Every open of the
-chain's file in the package waits this way (:func:`open_h5`).
+Readers and the writer never wait for each other: the writer reads the file only to copy it,
+under HDF5's shared lock, as readers do. Both wait for another process that holds the file
+itself open for writing (a script of the user's), instead of failing with ``BlockingIOError``
+or, as emcee's own ``initialized`` does, taking the locked file for an empty one that a resumed
+run would reset. Every open of the chain's file in the package waits this way
+(:func:`open_h5`). One run writes a file at a time: a commit that finds steps it did not write
+is refused, naming the file. The copy is made in the file's folder, which must be writable and
+have room for it; a symbolic link to the file stays a link, and the file it names is replaced.
 
 A damaged file is refused, never reset or shrunk, so no saved step is lost:
 
@@ -139,11 +142,12 @@ def write_h5(path):
     """
     import h5py
 
-    path = str(path)
+    path = os.path.realpath(str(path))  # a symbolic link stays; the file it names is replaced
     with atomic_path(path) as tmp:
         exists = os.path.exists(path)
         if exists:
-            shutil.copyfile(path, tmp)
+            with open_h5(path, "r"):  # waits while another process writes the file itself
+                shutil.copyfile(path, tmp)
         try:
             f = h5py.File(str(tmp), "r+" if exists else "w")
         except OSError as e:
@@ -157,6 +161,12 @@ def write_h5(path):
             f.close()
         with open(tmp, "rb") as fd:  # on disk before it replaces the file
             os.fsync(fd.fileno())
+    with contextlib.suppress(OSError):  # the replacement on disk too (not every system can)
+        fd = os.open(os.path.dirname(path), os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 # --------------------------------------------------------------------------- checks
@@ -316,7 +326,9 @@ class ChainFile(emcee.backends.HDFBackend):
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self._pending = []  # saved steps not yet in the file, oldest first
+        self._pending = []  # (step, coords, log_prob, blobs, accepted, random state) not yet
+        # in the file, oldest first; step: the row the step takes in the file
+        self._next = None  # the row of the next saved step, read from the file when None
         self._committed_at, self._commit_seconds = None, 0.0
         self._layout = None  # (nwalkers, ndim, has_blobs), read once after reset and grow
 
@@ -361,18 +373,30 @@ class ChainFile(emcee.backends.HDFBackend):
         if not self._pending:
             return
         t0 = time.perf_counter()
-        rows = self._pending  # a failed write leaves them held, and the file as it was
+        # the steps stay held until the file holds them: a failed write leaves the file as it
+        # was and the steps for the next commit; an interrupted one that replaced the file
+        # before it returned leaves steps the file holds, which the next commit drops
         with self._writing() as f:
             g = f[self.name]
-            it, n = int(g.attrs["iteration"]), len(rows)
-            g["chain"][it:it + n] = np.stack([r[0] for r in rows])
-            g["log_prob"][it:it + n] = np.stack([r[1] for r in rows])
-            if rows[0][2] is not None:
-                g["blobs"][it:it + n] = np.stack([r[2] for r in rows])
-            g["accepted"][:] += np.sum([r[3] for r in rows], axis=0)
-            for i, v in enumerate(rows[-1][4]):
-                g.attrs[f"random_state_{i}"] = v
-            g.attrs["iteration"] = it + n
+            it, first, end = (int(g.attrs["iteration"]), self._pending[0][0],
+                              self._pending[-1][0] + 1)
+            if it not in (first, end):  # end: an interrupted commit wrote them all
+                raise BayesmotionError(
+                    f"{self.filename}: chain group {self.name!r} holds {it} steps where this "
+                    f"run saved {first}: another run or process wrote the file meanwhile "
+                    f"(one run per file); the file is left as it is, without this run's "
+                    f"steps from {first} on")
+            rows = self._pending if it == first else []
+            if rows:
+                n = len(rows)
+                g["chain"][it:it + n] = np.stack([r[1] for r in rows])
+                g["log_prob"][it:it + n] = np.stack([r[2] for r in rows])
+                if rows[0][3] is not None:
+                    g["blobs"][it:it + n] = np.stack([r[3] for r in rows])
+                g["accepted"][:] += np.sum([r[4] for r in rows], axis=0)
+                for i, v in enumerate(rows[-1][5]):
+                    g.attrs[f"random_state_{i}"] = v
+                g.attrs["iteration"] = it + n
         self._pending = []
         self._committed_at = time.perf_counter()
         self._commit_seconds = self._committed_at - t0
@@ -380,10 +404,14 @@ class ChainFile(emcee.backends.HDFBackend):
     def save_step(self, state, accepted):
         """Keep the step in memory and commit when due (:data:`COMMIT_RATIO`)."""
         self._check_step(state, accepted)
+        if self._next is None:
+            self._next = self.iteration
         self._pending.append((
-            np.array(state.coords, dtype=self.dtype), np.array(state.log_prob, dtype=self.dtype),
+            self._next, np.array(state.coords, dtype=self.dtype),
+            np.array(state.log_prob, dtype=self.dtype),
             None if state.blobs is None else np.array(state.blobs), np.array(accepted),
             state.random_state))
+        self._next += 1
         if (self._committed_at is None or time.perf_counter() - self._committed_at
                 >= COMMIT_RATIO * self._commit_seconds):
             self.commit()
@@ -476,7 +504,8 @@ class ChainFile(emcee.backends.HDFBackend):
             raise ValueError(f"invalid acceptance size; expected {W}")
 
     def reset(self, nwalkers, ndim):
-        self._pending, self._layout = [], None  # the steps of the run being reset go with it
+        # the steps of the run being reset go with it
+        self._pending, self._layout, self._next = [], None, None
         with h5_errors(self.filename, "write"):
             super().reset(nwalkers, ndim)
 
@@ -489,7 +518,8 @@ class ChainFile(emcee.backends.HDFBackend):
     def iteration(self):
         """Saved steps: those in the file and those still held in memory."""
         with h5_errors(self.filename):
-            return super().iteration + len(self._pending)
+            stored = int(super().iteration)
+        return max(stored, self._pending[-1][0] + 1) if self._pending else stored
 
     @property
     def accepted(self):
@@ -514,16 +544,22 @@ class ChainFile(emcee.backends.HDFBackend):
 @contextlib.contextmanager
 def committing(*backends):
     """Commit the pending steps of every :class:`ChainFile` among ``backends`` when the block
-    ends, also when it ends by an error (``KeyboardInterrupt`` included), which then goes on:
-    a stopped run keeps every step it took. Other backends (emcee's in-memory one) are left
-    alone."""
+    ends, also when it ends by an error (``KeyboardInterrupt`` included), which then goes on
+    (a commit that fails then is passed over: the first error is the one to see): a stopped
+    run keeps every step it took. Other backends (emcee's in-memory one) are left alone."""
     files = [b for b in backends if isinstance(b, ChainFile)]
     try:
         yield
     except BaseException:
         for b in files:
-            with contextlib.suppress(BayesmotionError):  # the error that stopped the run goes on
+            with contextlib.suppress(Exception):
                 b.commit()
         raise
-    for b in files:
-        b.commit()
+    failed = None
+    for b in files:  # each file's steps, even where another's commit fails
+        try:
+            b.commit()
+        except Exception as e:
+            failed = failed or e
+    if failed is not None:
+        raise failed
