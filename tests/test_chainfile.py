@@ -205,16 +205,23 @@ def test_an_interrupted_run_keeps_every_step_it_took(tmp_path, monkeypatch):
                                   .transpose(1, 0, 2))
 
 
-def test_saved_steps_are_committed_in_batches_that_reads_see(tmp_path, monkeypatch):
+def _held(tmp_path, monkeypatch, n=3, name="chain.h5", accepted=(True, True, True, True)):
+    """A ChainFile that has saved ``n`` steps of 4 walkers in 2 coordinates, of which only the
+    first is committed, and the steps."""
     monkeypatch.setattr(chainfile, "COMMIT_RATIO", 1e12)
-    be = ChainFile(str(tmp_path / "chain.h5"))
+    be = ChainFile(str(tmp_path / name))
     be.reset(4, 2)
-    be.grow(5, None)
-    rng = np.random.default_rng(0)
+    be.grow(n, None)
+    rng = np.random.default_rng(2)
     rows = [emcee.State(rng.normal(size=(4, 2)), log_prob=rng.normal(size=4),
-                        random_state=np.random.RandomState(i).get_state()) for i in range(5)]
+                        random_state=np.random.RandomState(i).get_state()) for i in range(n)]
     for r in rows:
-        be.save_step(r, np.array([True, False, True, True]))
+        be.save_step(r, np.array(accepted))
+    return be, rows
+
+
+def test_saved_steps_are_committed_in_batches_that_reads_see(tmp_path, monkeypatch):
+    be, rows = _held(tmp_path, monkeypatch, n=5, accepted=(True, False, True, True))
     on_disk = emcee.backends.HDFBackend(be.filename, read_only=True)
     assert on_disk.iteration == 1 and be.iteration == 5  # the first committed, four held
     np.testing.assert_array_equal(be.get_chain(), np.stack([r.coords for r in rows]))  # commits
@@ -227,15 +234,7 @@ def test_saved_steps_are_committed_in_batches_that_reads_see(tmp_path, monkeypat
 
 
 def test_a_failed_commit_loses_nothing(tmp_path, monkeypatch):
-    monkeypatch.setattr(chainfile, "COMMIT_RATIO", 1e12)
-    be = ChainFile(str(tmp_path / "chain.h5"))
-    be.reset(4, 2)
-    be.grow(3, None)
-    rng = np.random.default_rng(1)
-    rows = [emcee.State(rng.normal(size=(4, 2)), log_prob=rng.normal(size=4),
-                        random_state=np.random.RandomState(i).get_state()) for i in range(3)]
-    for r in rows:
-        be.save_step(r, np.ones(4, dtype=bool))
+    be, rows = _held(tmp_path, monkeypatch)
     copy = chainfile.shutil.copyfile
 
     def full_disk(*a, **k):
@@ -250,20 +249,6 @@ def test_a_failed_commit_loses_nothing(tmp_path, monkeypatch):
     be.commit()  # the held steps, once there is room
     np.testing.assert_array_equal(emcee.backends.HDFBackend(be.filename, read_only=True)
                                   .get_chain(), np.stack([r.coords for r in rows]))
-
-
-def _held(tmp_path, monkeypatch, n=3, name="chain.h5"):
-    """A ChainFile holding ``n`` saved steps, the first of them committed."""
-    monkeypatch.setattr(chainfile, "COMMIT_RATIO", 1e12)
-    be = ChainFile(str(tmp_path / name))
-    be.reset(4, 2)
-    be.grow(n, None)
-    rng = np.random.default_rng(2)
-    rows = [emcee.State(rng.normal(size=(4, 2)), log_prob=rng.normal(size=4),
-                        random_state=np.random.RandomState(i).get_state()) for i in range(n)]
-    for r in rows:
-        be.save_step(r, np.ones(4, dtype=bool))
-    return be, rows
 
 
 def test_a_commit_interrupted_after_the_file_was_replaced_is_not_written_twice(tmp_path,
