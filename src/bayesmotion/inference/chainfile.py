@@ -1,6 +1,9 @@
 """The chain's HDF5 file: never half-written, safe to read while a run writes it, and checked
 before it is trusted.
 
+One concept: the file of one chain, as emcee's HDF5 layout: how it is written (a copy that
+replaces it, in batches), opened (waiting for another process's lock) and checked.
+
 A run killed at any moment (``kill -9``, an out-of-memory kill, a power cut after the last
 commit reached the disk) leaves a complete chain file: the file as of its last commit, which a
 resumed run continues bit for bit. HDF5 updates a file in place, and a process killed inside
