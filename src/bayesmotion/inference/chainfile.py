@@ -19,13 +19,13 @@ of 54 walkers in 26 coordinates, 25 MB, takes 35 ms on this project's CPU), so s
 committed in batches: a step is kept in memory until :data:`COMMIT_RATIO` times the last
 commit's duration has passed since that commit ended, which holds the copying to about
 ``1 / COMMIT_RATIO`` of the run's time and loses at most that window's steps to a kill; where
-one step takes longer than the window (on a CPU at the built-in size) every step is committed as
-it is taken. At 0.068 s per step (that
-chain's step on one H200) saving costs 6.1% of the run, against 8.1% for emcee's in-place
-writes, with at most 12 steps held (``benchmarks/results/chain_file.json``). A read through the
-backend (``get_chain``, ``get_last_sample``, ...) commits first, and so do the package's
-runners when they stop, also on an error or ``KeyboardInterrupt``. Another process reading the
-file sees the committed steps.
+one step takes longer than the window (on a CPU at the built-in size) every step is committed
+as it is taken. At 0.068 s per step (that chain's step on one H200) saving costs 6.1% of the
+run, against 8.1% for emcee's in-place writes, with at most 12 steps held
+(``benchmarks/results/chain_file.json``). A read through the backend (``get_chain``,
+``get_last_sample``, ...) commits first, and so do the package's runners when they stop, also
+on an error or ``KeyboardInterrupt``. Another process reading the file sees the committed
+steps.
 
 Readers and the writer never wait for each other: the writer reads the file only to copy it,
 under HDF5's shared lock, as readers do. Both wait for another process that holds the file

@@ -255,7 +255,7 @@ def _adapt_record(backend, done: int, n_adapt: int | None) -> int:
         return 0
     if done:
         return stored
-    with write_h5(backend) as f, h5_errors(backend, "write"):
+    with h5_errors(backend, "write"), write_h5(backend) as f:
         f["mcmc"].attrs[ADAPT_ATTR] = n_adapt
     return n_adapt
 
@@ -276,7 +276,7 @@ def _refit_record(backend, done: int, n_adapt: int, refits: list[int] | None) ->
                     f"{n_adapt}-step adaptation; the file was not written by this package: use "
                     f"another file")
             return stored
-    with write_h5(backend) as f, h5_errors(backend, "write"):
+    with h5_errors(backend, "write"), write_h5(backend) as f:
         f["mcmc"].attrs[REFIT_ATTR] = np.asarray(refits, dtype=np.int64)
     return refits
 
