@@ -146,6 +146,7 @@ def rescore(path: str | Path | None = None) -> dict:
 def run(quick: bool, root: str | Path | None = None, out: str | Path | None = None) -> dict:
     cfg = synthesis.QUICK if quick else synthesis.Settings()  # its groups: the judge's clips
     lengths = (0, cfg.transition_length) if quick else LENGTHS
+    within = 4 if quick else MATCHED_WITHIN
     root = Path(root) if root is not None else BANDAI_ROOT
     out = Path(out) if out is not None else RESULTS / f"{NAME}.json"
     base = {"name": NAME, "mode": "quick" if quick else "full",
@@ -157,7 +158,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
                          "matched_lengths": list((0, cfg.transition_length) if quick
                                                  else MATCHED_LENGTHS),
                          "synthesis_length": cfg.transition_length,
-                         "matched_within": 4 if quick else MATCHED_WITHIN},
+                         "matched_within": within},
             "targets": TARGETS}
     if not bandai_present(root):
         return bandai_skip(base, root, out)
@@ -170,7 +171,6 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
         _, model, fit_s = synthesis.fit_group("walks", data, cfg.groups["walks"], cfg)
     runs = []
     matched = (0, cfg.transition_length) if quick else MATCHED_LENGTHS
-    within = 4 if quick else MATCHED_WITHIN
     for lookahead, length, match, w in ([(cfg.lookahead, n, False, 0) for n in lengths]
                                         + [(0.0, cfg.transition_length, False, 0)]
                                         + [(cfg.lookahead, n, True, 0) for n in matched]

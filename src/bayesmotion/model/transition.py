@@ -77,26 +77,50 @@ def target_frames(model, target_coords: dict) -> list[tuple[int, int]]:
     return out
 
 
-def match_frame(model, last: np.ndarray, target_coords: dict) -> tuple[int, int, float]:
-    """(trial, frame within it, squared distance): the target training frame ``j`` whose poses
-    ``Y[j - m + 1 .. j]`` (all actors) are nearest to ``last`` (A, m, D)."""
-    m = last.shape[1]
-    best = None
+def _nearest(model, lasts: np.ndarray, target_coords: dict) -> tuple[int, int, int, float]:
+    """(candidate index, trial, frame within it, squared distance): over every candidate window
+    ``lasts`` (S, A, m, D) and every target training frame ``j`` whose poses
+    ``Y[j - m + 1 .. j]`` (all actors) it is compared with, the nearest pair; on a tie the
+    earliest candidate, then the first trial, then the earliest frame."""
+    S, m = lasts.shape[0], lasts.shape[2]
+    rows = []  # per target trial: (trial, (S,) distances, (S,) frames)
     for r, first in target_frames(model, target_coords):
         T = model.trials[r].n_frames
         if T < max(m, model.spec.order):
             continue
-        Y = [np.asarray(model.data.Y[a][first:first + T]) for a in range(model.n_actors)]
-        # windows ending at j = m - 1 .. T - 1
-        d = sum(((np.lib.stride_tricks.sliding_window_view(Y[a], m, axis=0)
-                  - last[a].T[None]) ** 2).sum((1, 2)) for a in range(model.n_actors))
-        j = int(np.argmin(d))
-        if best is None or d[j] < best[2]:
-            best = (r, j + m - 1, float(d[j]))
-    if best is None:
+        # windows ending at j = m - 1 .. T - 1, against every candidate: (S, T - m + 1)
+        d = sum(((np.lib.stride_tricks.sliding_window_view(
+                     np.asarray(model.data.Y[a][first:first + T]), m, axis=0)[None]
+                  - lasts[:, a].transpose(0, 2, 1)[:, None]) ** 2).sum((2, 3))
+                for a in range(model.n_actors))
+        j = np.argmin(d, axis=1)
+        rows.append((r, d[np.arange(S), j], j + m - 1))
+    if not rows:
         raise BayesmotionError("a matched Transition needs a training trial of the target "
                                f"with at least {max(m, model.spec.order)} frames")
-    return best
+    d = np.stack([row[1] for row in rows], axis=1)  # (S, trials)
+    i, k = np.unravel_index(int(np.argmin(d)), d.shape)
+    r, _, j = rows[k]
+    return int(i), int(r), int(j[i]), float(d[i, k])
+
+
+def match_frame(model, last: np.ndarray, target_coords: dict) -> tuple[int, int, float]:
+    """(trial, frame within it, squared distance): the target training frame ``j`` whose poses
+    ``Y[j - m + 1 .. j]`` (all actors) are nearest to ``last`` (A, m, D)."""
+    _, r, j, d = _nearest(model, np.asarray(last)[None], target_coords)
+    return r, j, d
+
+
+def match_switch(model, Y: np.ndarray, first: int, last: int,
+                 target_coords: dict) -> tuple[int, int, int, float]:
+    """(switch frame s, trial, frame within it, squared distance): over every switch frame
+    ``s`` in ``first .. last`` (the source poses ``Y`` (A, >= last, D) before ``s`` are matched),
+    the one whose :func:`match_frame` is nearest, all compared at once; the earliest on a
+    tie."""
+    m = model.spec.order + 1
+    lasts = np.stack([Y[:, s - m:s] for s in range(first, last + 1)])
+    i, r, j, d = _nearest(model, lasts, target_coords)
+    return first + i, r, j, d
 
 
 def _splice_poses(src_Y: np.ndarray, tgt_Y: np.ndarray, start: int, o: int,
@@ -110,20 +134,6 @@ def _splice_poses(src_Y: np.ndarray, tgt_Y: np.ndarray, start: int, o: int,
     if L > 0:
         out[:, start:start + L] += np.swapaxes(blend_offsets(x0, v0, length)[:L], 0, 1)
     return out
-
-
-def match_switch(model, Y: np.ndarray, first: int, last: int,
-                 target_coords: dict) -> tuple[int, int, int, float]:
-    """(switch frame s, trial, frame within it, squared distance): over every switch frame
-    ``s`` in ``first .. last`` (the source poses ``Y`` (A, >= last, D) before ``s`` are matched),
-    the one whose :func:`match_frame` is nearest; the earliest on a tie."""
-    m = model.spec.order + 1
-    best = None
-    for s in range(first, last + 1):
-        r, j, d = match_frame(model, Y[:, s - m:s], target_coords)
-        if best is None or d < best[3]:
-            best = (s, r, j, d)
-    return best
 
 
 def check_matched(model, t: Transition, n_frames: int) -> int:
