@@ -26,16 +26,21 @@ below is generated with ``lookahead`` (``FittedHGPDM.generate(lookahead=...)``).
   gives its emotion, averaged over ``window``-frame windows of the first and of the last 200
   frames (``judge_p_first200``, ``judge_p_last200``).
 * **Transitions** (walks): ``transition_frames``-frame mean rollouts whose emotion changes
-  from neutral to each other emotion along a ``transition_length``-frame smoothstep
-  (:class:`bayesmotion.Transition`) centred in the rollout: the judge's (trained on every real
-  clip) probability of the source and of the target emotion in sliding windows of
-  ``window`` frames, the limb motion after the switch over before it, and the body-frame jerk
-  in the switch window over the jerk elsewhere (1 means no jump at the switch) and over the
-  jerkier side's (before or after the switch: a faster emotion jerks more), with that side's
-  own spread: the same ratio for every window of the switch window's width wholly on that
-  side, their 90th percentile and the switch window's rank among them (a rank above 0.9 is a
-  jump that stands out from the side's own variation), and how far the interaction latents
-  jump there (:func:`transition_row`).
+  from neutral to each other emotion at their centre, by the transition the docs recommend for
+  walks (``transition_match``): a matched :class:`bayesmotion.Transition` whose switch is
+  searched over the ``transition_within`` frames after the centre (one stride) and whose pose
+  difference is blended out over ``transition_blend`` frames; with ``transition_match=False``
+  a ``transition_length``-frame smoothstep of the style coordinates centred in the rollout
+  (``benchmarks/transition_lengths.py`` compares both over their lengths). Measured: the
+  judge's (trained on every real clip) probability of the source and of the target emotion in
+  sliding windows of ``window`` frames, the limb motion after the switch over before it, and
+  the body-frame jerk in the switch window over the jerk elsewhere (1 means no jump at the
+  switch) and over the jerkier side's (before or after the switch: a faster emotion jerks
+  more), with that side's own spread: the same ratio for every window of the switch window's
+  width wholly on that side, their 90th percentile and the switch window's rank among them (a
+  rank above 0.9 is a jump that stands out from the side's own variation), and how far the
+  interaction latents jump there (:func:`transition_row`). The headline's transition row
+  judges them by ``TRANSITION_TARGETS``.
 * **Built-in handshakes** (``HGPDM().fit(load_handshakes())``, ``handshake_iter`` iterations
   at most): per emotion, the minimum distance between the two right hands in a rollout as
   long as a training trial (against the real CMU handshake's), and over ``long_frames``
@@ -135,7 +140,10 @@ class Settings:
     long_frames: int = 1000
     handshake_iter: int = 1000
     transition_frames: int = 300
-    transition_length: int = 20
+    transition_length: int = 20  # the smoothstep's frames (transition_match=False)
+    transition_match: bool = True  # a matched transition, switch searched (module docstring)
+    transition_within: int = 12  # frames after the centre the switch is searched over
+    transition_blend: int = 10  # frames the matched switch's pose difference is blended over
     window: int = 40
     seed: int = 0
     periodic: tuple = ("walks", "run")  # groups fitted with HGPDM(periodic=True)
@@ -334,17 +342,81 @@ def transition_row(model, judge: LogisticRegression, source: str, target: str, n
             "switch": start}
 
 
-def transitions(model, judge: LogisticRegression, cfg: Settings) -> dict:
-    """Neutral -> emotion transitions in one rollout (module docstring)."""
+def transition_block(model, judge: LogisticRegression, cfg: Settings, length: int,
+                     lookahead: float, match: bool = False, within: int = 0) -> dict:
+    """emotion -> :func:`transition_row` of the neutral -> emotion transition (or the
+    generator's error) at one length, look-ahead and kind of transition."""
     levels = list(model.levels["emotion"])
     out = {}
     for e in levels[1:]:
         try:
-            out[e] = transition_row(model, judge, levels[0], e, cfg.transition_frames,
-                                    cfg.transition_length, cfg.window, cfg.seed, cfg.lookahead)
+            out[e] = transition_row(model, judge, levels[0], e, cfg.transition_frames, length,
+                                    cfg.window, cfg.seed, lookahead, match, within)
         except BayesmotionError as err:
             out[e] = {"error": str(err)}
     return out
+
+
+def transitions(model, judge: LogisticRegression, cfg: Settings) -> dict:
+    """Neutral -> emotion transitions in one rollout, of the run's kind (module docstring)."""
+    length, within = ((cfg.transition_blend, cfg.transition_within) if cfg.transition_match
+                      else (cfg.transition_length, 0))
+    return transition_block(model, judge, cfg, length, cfg.lookahead, cfg.transition_match,
+                            within)
+
+
+TRANSITION_TARGETS = {"jerk_switch_rank_max": 0.9, "p_target_last_window_min": 0.5}
+"""#34's "no jump in jerk at the switch", read as a rank of at most 0.9 for every emotion: the
+switch window jerks no more than the jerkier side's 90th percentile window; and the emotion
+changes: the judge's p(target) in the last window at least 0.5 for every emotion (a transition
+that never reaches its target cannot jump to it)."""
+TRANSITION_KEYS = ("p_target_last_window", "jerk_switch_over_jerkier_side", "jerk_switch_rank",
+                   "jerk_side_windows_q90", "jerk_switch_over_elsewhere",
+                   "latent_step_switch_max_over_median", "latent_distance_switch_max")
+
+
+def transition_summary(block: dict) -> dict:
+    """Each of ``TRANSITION_KEYS``: its value per emotion and the worst (largest jerk and
+    latent ratios, smallest target probability)."""
+    ok = {e: r for e, r in block.items() if "error" not in r}
+    out = {}
+    for k in TRANSITION_KEYS:
+        vals = {e: r[k] for e, r in ok.items() if r.get(k) is not None}
+        worst = min(vals.values()) if k.startswith("p_") else max(vals.values())
+        out[k] = {"per_emotion": vals, "worst": worst} if vals else {"per_emotion": {}}
+    out["errors"] = len(block) - len(ok)
+    return out
+
+
+def transition_name(length: int, matched: bool, within: int = 0) -> str:
+    """The kind of a transition as the headlines name it."""
+    what = (f"matched transition, {length}-frame blend" if matched
+            else f"{length}-frame transition")
+    return what + (f", switch searched over {within} frames" if within else "")
+
+
+def transition_headline(summary: dict, what: str) -> dict:
+    """One kind of transition's row: the worst emotion's switch-window rank among the jerkier
+    side's same-width windows (the target, met only where every emotion also takes:
+    ``TRANSITION_TARGETS``), each emotion's ratio, that side's 90th percentile and the judge's
+    p(target) in the last window in the note. ``what`` names the transition. An emotion whose
+    transition the generator refused leaves the row unmet."""
+    s, limit = summary, TRANSITION_TARGETS["jerk_switch_rank_max"]
+    p_min = TRANSITION_TARGETS["p_target_last_window_min"]
+    ratio, q90 = (s[k]["per_emotion"] for k in ("jerk_switch_over_jerkier_side",
+                                                "jerk_side_windows_q90"))
+    rank, p = s["jerk_switch_rank"]["per_emotion"], s["p_target_last_window"]["per_emotion"]
+    worst = s["jerk_switch_rank"]["worst"]
+    return headline(
+        f"walks, {what}: the switch window's jerk, rank among the jerkier side's same-width "
+        f"windows (worst emotion)", worst, "",
+        f"<= {limit:g}, every p(target) >= {p_min:g}",
+        (worst <= limit and not s["errors"] and len(rank) == len(ratio) == len(p)
+         and min(p.values()) >= p_min),
+        "; ".join(f"{e}: jerk {ratio[e]:.2f}x the jerkier side's (its windows' 90th "
+                  f"percentile {q90[e]:.2f}x), rank {rank[e]:.2f}, p(target) last window "
+                  f"{p[e]:.2f}" for e in rank)
+        + (f"; {s['errors']} refused by the generator" if s["errors"] else ""))
 
 
 def handshakes(cfg: Settings) -> dict:
@@ -551,9 +623,22 @@ def _ratio(v) -> str:
     return "n/a" if v is None or not np.isfinite(v) else f"{v:.2f}"
 
 
-def headline_rows(groups: dict, hs: dict, long_frames: int) -> list[dict]:
-    """The headline of a run: one row per group (its targets as judged in ``targets_met``)
-    and the built-in handshakes' two rows (hands meet; long rollouts come to rest)."""
+def run_transition_name(settings: dict) -> str:
+    """The kind of a stored run's transitions (:func:`transition_name`, with its look-ahead);
+    a run stored before ``transition_match`` made smoothsteps."""
+    if settings.get("transition_match"):
+        what = transition_name(settings["transition_blend"], True,
+                               settings["transition_within"])
+    else:
+        what = transition_name(settings["transition_length"], False)
+    return f"{what}, look-ahead {settings['lookahead']:g}"
+
+
+def headline_rows(groups: dict, hs: dict, long_frames: int,
+                  settings: dict | None = None) -> list[dict]:
+    """The headline of a run: one row per group (its targets as judged in ``targets_met``),
+    the walks' transitions where the run made them (``settings`` names their kind), and the
+    built-in handshakes' two rows (hands meet; long rollouts come to rest)."""
     rows = []
     for name, g in groups.items():
         nat, syn = g["natural_rate"]["rate"], g["synthesized_rate"]
@@ -583,6 +668,11 @@ def headline_rows(groups: dict, hs: dict, long_frames: int) -> list[dict]:
             f"{lw['judge_p_last200'] or float('nan'):.2f}; fit "
             f"{g['fit']['iterations']} iterations, converged {g['fit']['converged']}; "
             f"group targets not met: {', '.join(missed) or 'none'}"))
+    trans = (groups.get("walks") or {}).get("transitions")
+    if trans and settings is not None:
+        summary = transition_summary(trans)
+        if "worst" in summary["jerk_switch_rank"]:
+            rows.append(transition_headline(summary, run_transition_name(settings)))
     ok = {e: r for e, r in hs["emotions"].items() if "error" not in r}
     limit = TARGETS["rest_motion_max"]
     # a ratio stored as null (not finite when measured: a rollout that never moved or blew up)
@@ -628,7 +718,7 @@ def rescore(path: str | Path) -> dict:
                          f"{stored.get('status')!r})")
     stored["targets"] = {**TARGETS, **stored.get("targets", {})}  # as judged, new ones added
     stored["headline"] = headline_rows(stored["groups"], stored["handshakes"],
-                                       stored["settings"]["long_frames"])
+                                       stored["settings"]["long_frames"], stored["settings"])
     stored["rescored_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
     write_json(path, stored)
     return stored
@@ -658,7 +748,7 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
         warnings.simplefilter("ignore", RuntimeWarning)
         hs = handshakes(cfg)
     print(f"[{NAME}] built-in handshakes done", file=sys.stderr, flush=True)
-    rows = headline_rows(groups, hs, cfg.long_frames)
+    rows = headline_rows(groups, hs, cfg.long_frames, asdict(cfg))
     result = {**base, "data": {"root": str(root), "clips": [t.name for t in data]},
               "groups": groups, "handshakes": hs, "headline": rows, "status": "ok",
               "timing_s": {"total": time.perf_counter() - t0}, "machine": machine_info()}

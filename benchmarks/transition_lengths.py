@@ -49,7 +49,6 @@ from _common import (  # noqa: E402
     RESULTS,
     bandai_present,
     bandai_skip,
-    headline,
     machine_info,
     show_headlines,
     standalone_main,
@@ -57,7 +56,6 @@ from _common import (  # noqa: E402
 )
 
 from bayesmotion.baselines import LogisticRegression  # noqa: E402
-from bayesmotion.errors import BayesmotionError  # noqa: E402
 from bayesmotion.features import clip_features  # noqa: E402
 
 NAME = "transition_lengths"
@@ -66,65 +64,13 @@ MATCHED_LENGTHS = (0, 5, 10, 20)  # blend lengths of the matched transitions
 # frames after the centre a searched matched switch may come at: one gait cycle at 10 fps
 # (study_interpolation.STRIDE_SECONDS, 1.2 s)
 MATCHED_WITHIN = 12
-# no jump: the switch window jerks no more than 90% of the same-width windows of the jerkier
-# side (its rank among them <= 0.9), for every emotion
-TARGETS = {"jerk_switch_rank_max": 0.9, "p_target_last_window_min": 0.5}
-KEYS = ("p_target_last_window", "jerk_switch_over_jerkier_side", "jerk_switch_rank",
-        "jerk_side_windows_q90", "jerk_switch_over_elsewhere",
-        "latent_step_switch_max_over_median", "latent_distance_switch_max")
-
-
-def rows(model, judge: LogisticRegression, cfg, length: int, lookahead: float,
-         match: bool = False, within: int = 0) -> dict:
-    """emotion -> transition_row (or the generator's error) at one length and look-ahead."""
-    levels = list(model.levels["emotion"])
-    out = {}
-    for e in levels[1:]:
-        try:
-            out[e] = synthesis.transition_row(model, judge, levels[0], e, cfg.transition_frames,
-                                              length, cfg.window, cfg.seed, lookahead, match,
-                                              within)
-        except BayesmotionError as err:
-            out[e] = {"error": str(err)}
-    return out
-
-
-def summary(block: dict) -> dict:
-    """Each of ``KEYS``: its value per emotion and the worst (largest jerk and latent ratios,
-    smallest target probability)."""
-    ok = {e: r for e, r in block.items() if "error" not in r}
-    out = {}
-    for k in KEYS:
-        vals = {e: r[k] for e, r in ok.items() if r.get(k) is not None}
-        worst = min(vals.values()) if k.startswith("p_") else max(vals.values())
-        out[k] = {"per_emotion": vals, "worst": worst} if vals else {"per_emotion": {}}
-    out["errors"] = len(block) - len(ok)
-    return out
+TARGETS = synthesis.TRANSITION_TARGETS
 
 
 def _headline(r: dict) -> dict:
-    """One run's row: the worst emotion's switch-window rank among the jerkier side's
-    same-width windows (the target, met only where every emotion also takes: ``TARGETS``),
-    each emotion's ratio, that side's 90th percentile and the judge's p(target) in the last
-    window in the note."""
-    s, limit = r["summary"], TARGETS["jerk_switch_rank_max"]
-    p_min = TARGETS["p_target_last_window_min"]
-    ratio, q90 = (s[k]["per_emotion"] for k in ("jerk_switch_over_jerkier_side",
-                                                "jerk_side_windows_q90"))
-    rank, p = s["jerk_switch_rank"]["per_emotion"], s["p_target_last_window"]["per_emotion"]
-    worst = s["jerk_switch_rank"]["worst"]
-    what = (f"matched transition, {r['length']}-frame blend" if r["matched"]
-            else f"{r['length']}-frame transition")
-    if r.get("within"):
-        what += f", switch searched over {r['within']} frames"
-    return headline(
-        f"walks, {what}, look-ahead {r['lookahead']:g}: the switch window's jerk, rank among "
-        f"the jerkier side's same-width windows (worst emotion)", worst, "",
-        f"<= {limit:g}, every p(target) >= {p_min:g}",
-        worst <= limit and len(rank) == len(ratio) == len(p) and min(p.values()) >= p_min,
-        "; ".join(f"{e}: jerk {ratio[e]:.2f}x the jerkier side's (its windows' 90th "
-                  f"percentile {q90[e]:.2f}x), rank {rank[e]:.2f}, p(target) last window "
-                  f"{p[e]:.2f}" for e in rank))
+    """One run's row (:func:`synthesis.transition_headline`)."""
+    what = synthesis.transition_name(r["length"], r["matched"], r.get("within", 0))
+    return synthesis.transition_headline(r["summary"], f"{what}, look-ahead {r['lookahead']:g}")
 
 
 def rescore(path: str | Path | None = None) -> dict:
@@ -175,9 +121,9 @@ def run(quick: bool, root: str | Path | None = None, out: str | Path | None = No
                                         + [(0.0, cfg.transition_length, False, 0)]
                                         + [(cfg.lookahead, n, True, 0) for n in matched]
                                         + [(cfg.lookahead, n, True, within) for n in matched]):
-        block = rows(model, judge, cfg, length, lookahead, match, w)
+        block = synthesis.transition_block(model, judge, cfg, length, lookahead, match, w)
         runs.append({"length": length, "lookahead": lookahead, "matched": match, "within": w,
-                     "emotions": block, "summary": summary(block)})
+                     "emotions": block, "summary": synthesis.transition_summary(block)})
         print(f"[{NAME}] length {length}, look-ahead {lookahead}, matched {match}, within {w}:"
               f" done", file=sys.stderr, flush=True)
     head = [_headline(r) for r in runs if "worst" in r["summary"]["jerk_switch_rank"]]

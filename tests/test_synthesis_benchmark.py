@@ -1,5 +1,6 @@
 """Helpers of the synthesis 'Turing test' (benchmarks/synthesis.py), without fitting."""
 
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -213,7 +214,7 @@ def test_transition_row_measures_the_rollout_it_names(tiny_model):
                                    "jerk_switch_over_jerkier_side": 9.0,
                                    "jerk_switch_rank": 1.0},
              "happy": {"error": "refused"}}
-    s = transition_lengths.summary(block)
+    s = synthesis.transition_summary(block)
     assert s["errors"] == 1
     assert s["jerk_switch_over_jerkier_side"]["worst"] == 9.0
     assert s["jerk_switch_rank"]["worst"] == 1.0
@@ -236,7 +237,7 @@ def test_a_transition_meets_the_no_jump_target_only_where_every_emotion_takes(tm
     taken = {"happy": row(0.6, 0.87), "sad": row(0.3, 0.93)}
     stuck = {"happy": row(0.4, 0.09), "sad": row(0.3, 0.93)}
     runs = [{"length": 10, "lookahead": 10.0, "matched": m, "within": w, "emotions": b,
-             "summary": transition_lengths.summary(b)}
+             "summary": synthesis.transition_summary(b)}
             for m, w, b in ((True, 12, taken), (False, 0, stuck))]
     heads = [transition_lengths._headline(r) for r in runs]
     assert [h["met"] for h in heads] == [True, False]
@@ -248,6 +249,46 @@ def test_a_transition_meets_the_no_jump_target_only_where_every_emotion_takes(tm
     assert [h["met"] for h in out["headline"]] == [True, False] and "rescored_utc" in out
     assert json.loads(path.read_text())["runs"] == runs
 
+
+
+def test_the_walks_transitions_have_a_headline_row_naming_their_kind():
+    """The run's walk transitions are judged in its headline as transition_lengths judges
+    each kind (every emotion's switch-window rank and p(target)), named by the run's settings:
+    the matched, searched transition by default; a result stored before ``transition_match``
+    existed made smoothsteps and is named so when rescored."""
+    def row(rank, p):
+        return {"p_target_last_window": p, "jerk_switch_over_jerkier_side": 1.0,
+                "jerk_switch_rank": rank, "jerk_side_windows_q90": 1.1,
+                "jerk_switch_over_elsewhere": 1.0, "latent_step_switch_max_over_median": 1.0,
+                "latent_distance_switch_max": 0.1}
+
+    g = {"natural_rate": {"rate": 0.6}, "synthesized_rate": {"mean": 0.75, "sampled": 0.7},
+         "naturalness": {"jerk_ratio": 1.1, "foot_sliding_ratio": 1.1},
+         "long_worst": {"latent_range": 1.2, "limb_motion_last_over_first": 1.0,
+                        "judge_p_last200": 0.5, "errors": 0},
+         "fit": {"iterations": 10, "converged": False},
+         "transitions": {"happy": row(0.84, 0.87), "angry": row(0.57, 0.72),
+                         "sad": {"error": "refused"}}}
+    g["targets_met"] = synthesis.targets_met(g)
+    settings = dataclasses.asdict(synthesis.Settings())
+    rows = synthesis.headline_rows({"walks": g}, {"emotions": {}}, 1000, settings)
+    trans = [r for r in rows if "switch window" in r["metric"]]
+    assert len(trans) == 1 and rows.index(trans[0]) == 1  # after the group's row
+    assert trans[0]["metric"].startswith(
+        "walks, matched transition, 10-frame blend, switch searched over 12 frames, "
+        "look-ahead 10:")
+    # the failed emotion leaves the row unmet: every emotion must take
+    assert (trans[0]["value"], trans[0]["met"]) == (0.84, False)
+    g["transitions"]["sad"] = row(0.31, 0.93)
+    (trans,) = [r for r in synthesis.headline_rows({"walks": g}, {"emotions": {}}, 1000,
+                                                   settings) if "switch window" in r["metric"]]
+    assert trans["met"] is True and "sad: jerk 1.00x" in trans["note"]
+    old = {k: v for k, v in settings.items() if not k.startswith("transition_")
+           or k == "transition_length"}
+    assert synthesis.run_transition_name(old) == "20-frame transition, look-ahead 10"
+    # without settings (or without transitions) there is no such row
+    assert not [r for r in synthesis.headline_rows({"walks": g}, {"emotions": {}}, 1000)
+                if "switch window" in r["metric"]]
 
 def _handshakes(ratios: dict) -> dict:
     rows = {e: {"min_hand_distance": 6.7, "latent_range": 1.2, "motion_last_over_first": v,
