@@ -74,6 +74,56 @@ def test_continuous_style_interpolates_and_flags_extrapolation(tiny_model):
     assert np.all(np.diff(s[:, 1]) >= 0)
 
 
+
+def test_nearest_dynamics_follows_the_nearest_level_and_maps_at_the_coordinates(tiny_model):
+    """``dynamics_style="nearest"``: the latent path is the rollout of the level nearest the
+    coordinates (the same start), and the poses are that path mapped down at the requested
+    coordinates; at a level both styles are one rollout."""
+    import jax.numpy as jnp
+
+    from bayesmotion.model.generate import map_down_mean, resolve_style
+    from bayesmotion.model.predict import style_vectors
+
+    m, o, T = tiny_model, tiny_model.spec.order, 12
+    start = np.asarray(m.params["I"])[:o]
+    for level in ("happy", "sad"):
+        a = m.generate(emotion=level, n_frames=T, start=start)
+        b = m.generate(emotion=level, n_frames=T, start=start, dynamics_style="nearest")
+        for field in ("I", "Y", "positions", "positions_var"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    P = m.predictor()
+    for w, nearest in ((0.7, "happy"), (0.3, "sad"), (0.5, "happy")):  # a tie: the first
+        coords = [w, 1 - w]
+        near = m.generate(emotion=coords, n_frames=T, start=start, dynamics_style="nearest")
+        path = m.generate(emotion=nearest, n_frames=T, start=start)
+        np.testing.assert_array_equal(near.I, path.I)
+        np.testing.assert_allclose(near.styles["emotion"], [coords] * T)
+        int_f = m.spec.interaction_factors
+        int_s = tuple(style_vectors(P, int_f, [resolve_style(
+            m, f, coords if f == "emotion" else m.levels[f][0], T) for f in int_f]))
+        Y = np.stack([np.asarray(y) for _, y in map_down_mean(P, jnp.asarray(near.I), int_s,
+                                                              m.n_actors)])
+        np.testing.assert_allclose(near.Y, Y, rtol=1e-9, atol=1e-12)
+        assert not np.allclose(near.Y, path.Y)  # the mapping carries the other level
+        requested = m.generate(emotion=coords, n_frames=T, start=start)
+        assert not np.allclose(requested.I[o:], near.I[o:])
+    # a matched transition's segments run with it too: its source up to the switch
+    tr = m.generate(emotion=bm.Transition([0.7, 0.3], "sad", 6, 2, match=True), n_frames=T,
+                    start=start, dynamics_style="nearest")
+    src = m.generate(emotion=[0.7, 0.3], n_frames=T, start=start, dynamics_style="nearest")
+    np.testing.assert_array_equal(tr.I[:6], src.I[:6])
+    # per frame along time-varying coordinates (a smoothstep switches the dynamics halfway)
+    from bayesmotion.model.generate import dynamics_coords
+
+    c = np.array([[1.0, 0.0], [0.6, 0.4], [0.5, 0.5], [0.4, 0.6], [1.3, -0.3]])
+    np.testing.assert_array_equal(dynamics_coords(c, "nearest"),
+                                  [[1, 0], [1, 0], [1, 0], [0, 1], [1, 0]])
+    assert dynamics_coords(c, "requested") is c
+    with pytest.raises(BayesmotionError, match="dynamics_style must be one of"):
+        m.generate(emotion=[0.5, 0.5], n_frames=T, dynamics_style="closest")
+    with pytest.raises(BayesmotionError, match="dynamics_style must be one of"):
+        m.generate(emotion="happy", n_frames=T, dynamics_style=None)
+
 def test_generate_rejects_bad_styles(tiny_model):
     with pytest.raises(BayesmotionError, match="unknown emotion"):
         tiny_model.generate(emotion="furious")

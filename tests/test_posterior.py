@@ -349,6 +349,15 @@ def test_posterior_predictive_decomposes_variance(tiny_model):
     np.testing.assert_allclose(parts["within"], np.mean([p.positions_var for p in per], 0),
                                rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(parts["between"], means.var(0), rtol=1e-9, atol=1e-15)
+    # dynamics_style reaches every draw's rollout
+    near = post.generate(emotion=[0.7, 0.3], n_frames=15, n_draws=4,
+                         dynamics_style="nearest")
+    per = [generate(tiny_model, [0.7, 0.3], None, 15, 0, None, k,
+                    predictor=post.predictor(int(i)), dynamics_style="nearest")
+           for k, i in enumerate(near.draws)]
+    np.testing.assert_allclose(near.I, np.mean([p.I for p in per], 0), rtol=1e-9, atol=1e-12)
+    assert not np.allclose(near.I, post.generate(emotion=[0.7, 0.3], n_frames=15,
+                                                 n_draws=4).I)
     # the law of total variance, checked against samples rather than restated: at the first
     # generated step every sample is drawn from its draw's one-step predictive N(m_d, v_d), so
     # the pooled samples' variance must match E_d v_d + Var_d m_d (the reported I_var). On this

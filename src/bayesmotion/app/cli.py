@@ -170,6 +170,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="keep long rollouts on the training latents: each step also lowers the "
                         "next step's predictive variance, with this weight (0: plain "
                         "predictive means; 10 keeps periodic walk models walking)")
+    g.add_argument("--dynamics-style", choices=("requested", "nearest"), default="requested",
+                   help="where the dynamics runs at coordinates between levels: at them "
+                        "(requested, the default) or at the nearest level, the mapping alone "
+                        "at the coordinates (nearest; generate(dynamics_style=...))")
     g.add_argument("--pin-feet", action="store_true",
                    help="correct each actor's root path so planted feet do not glide "
                         "(bayesmotion.features.contacts.pin_feet)")
@@ -384,7 +388,7 @@ def _cmd_generate(a):
                                f"({m.spec.order}), got {a.frames}")
     r = m.generate(emotion=emotion, couple=a.couple, n_frames=a.frames,
                    n_samples=a.samples, seed=a.seed, sample_memory=a.sample_memory,
-                   lookahead=a.lookahead)
+                   lookahead=a.lookahead, dynamics_style=a.dynamics_style)
     if a.pin_feet or a.pin_legs:
         r = r.pin_feet(legs=a.pin_legs)
     tag = a.emotion.replace(",", "_")

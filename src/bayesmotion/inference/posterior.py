@@ -135,14 +135,15 @@ class Posterior:
 
     def generate(self, emotion="neutral", couple=None, n_frames=100, n_samples=0, start=None,
                  seed=0, n_draws: int = 16, client=None, workers: int | None = None,
-                 sample_memory: int = SAMPLE_MEMORY, lookahead: float = 0.0, **styles):
+                 sample_memory: int = SAMPLE_MEMORY, lookahead: float = 0.0,
+                 dynamics_style: str = "requested", **styles):
         """Posterior-predictive generation; see
         :func:`bayesmotion.inference.predictive.generate_posterior` (``client`` or
-        ``workers``: the draws' rollouts as tasks on a Dask cluster; ``sample_memory`` and
-        ``lookahead`` as in :meth:`bayesmotion.FittedHGPDM.generate`)."""
+        ``workers``: the draws' rollouts as tasks on a Dask cluster; ``sample_memory``,
+        ``lookahead`` and ``dynamics_style`` as in :meth:`bayesmotion.FittedHGPDM.generate`)."""
         return generate_posterior(self, emotion, couple, n_frames, n_samples, start, seed,
                                   n_draws, client, workers, sample_memory, lookahead,
-                                  **styles)
+                                  dynamics_style=dynamics_style, **styles)
 
 
 def _constrain(p: dict, mapping_noise_floor: float = 0.0) -> dict:

@@ -31,7 +31,8 @@ SPACES = ("I", "X", "Y", "angles", "positions")
 
 def generate_posterior(post, emotion="neutral", couple=None, n_frames=100, n_samples=0,
                        start=None, seed=0, n_draws=16, client=None, workers=None,
-                       sample_memory=SAMPLE_MEMORY, lookahead=0.0, **styles):
+                       sample_memory=SAMPLE_MEMORY, lookahead=0.0, dynamics_style="requested",
+                       **styles):
     """Rollouts for ``n_draws`` evenly spaced posterior draws, combined into one Rollout.
 
     The returned Rollout's means are averages over draws; ``*_var`` hold the total variance
@@ -40,8 +41,8 @@ def generate_posterior(post, emotion="neutral", couple=None, n_frames=100, n_sam
     Draw k's rollout is seeded ``seed + k`` wherever it runs: with ``client`` (a
     ``dask.distributed.Client``, kept open) or ``workers`` (a ``LocalCluster`` of that many
     processes, closed at the end) each draw is a task on the cluster, and the answer equals the
-    one computed here. ``sample_memory``, ``lookahead`` and ``styles`` as in
-    :meth:`bayesmotion.FittedHGPDM.generate`.
+    one computed here. ``sample_memory``, ``lookahead``, ``dynamics_style`` and ``styles`` as
+    in :meth:`bayesmotion.FittedHGPDM.generate`.
     """
     check_sample_memory(sample_memory, n_samples)
     check_decodes(post.model)  # before any draw's model is conditioned
@@ -49,17 +50,18 @@ def generate_posterior(post, emotion="neutral", couple=None, n_frames=100, n_sam
     if client is None and workers is None:
         rolls = [generate(post.model, emotion, couple, n_frames, n_samples, start, seed + k,
                           predictor=post.predictor(int(i)), sample_memory=sample_memory,
-                          lookahead=lookahead,
+                          lookahead=lookahead, dynamics_style=dynamics_style,
                           **styles)
                  for k, i in enumerate(idx)]
     else:
         # checked here (the same errors as above, before any task is sent)
         generate(post.model, emotion, couple, post.model.spec.order + 1, 0, start, seed,
-                 predictor=post.predictor(int(idx[0])), **styles)
+                 predictor=post.predictor(int(idx[0])), dynamics_style=dynamics_style, **styles)
         rolls = _generate_on_cluster(post, idx, client, 2 if workers is None else workers,
                                      (emotion, couple, n_frames, n_samples, start), seed,
                                      {**styles, "sample_memory": sample_memory,
-                                      "lookahead": lookahead})
+                                      "lookahead": lookahead,
+                                      "dynamics_style": dynamics_style})
     parts, fields = {}, {}
     for s in SPACES:
         means = np.stack([getattr(r, s) for r in rolls])

@@ -176,7 +176,7 @@ class FittedHGPDM:
     # ------------------------------------------------------------------ generation
     def generate(self, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,
                  start=None, seed: int = 0, sample_memory: int = SAMPLE_MEMORY,
-                 lookahead: float = 0.0, **styles):
+                 lookahead: float = 0.0, dynamics_style: str = "requested", **styles):
         """Generate motion top-down with predictive uncertainty.
 
         Args:
@@ -200,6 +200,15 @@ class FittedHGPDM:
                 (``HGPDM(periodic=True)``) and ``lookahead=10`` the Bandai walks keep
                 walking and keep their emotion over 1,000 frames (docs/model.md,
                 ``benchmarks/results/synthesis.json``). Not with ``sample_memory``.
+            dynamics_style: ``"requested"`` (default): the dynamics and the interaction
+                mapping both run at the requested style coordinates, as in the model.
+                ``"nearest"``: the dynamics runs at the trained level nearest the coordinates
+                (per frame, the largest coordinate's) and only the mapping from the latent
+                state to the actors' latents at the requested coordinates, so a rollout
+                between emotions follows one emotion's learned trajectory and is modulated
+                towards the other by the mapping. At one-hot coordinates both are the same.
+                On the Bandai walks mixed coordinates then move the motion along the neutral
+                -> emotion direction in proportion (docs/model.md, emotion interpolation).
             **styles: values for any other style factor of the model.
         Returns:
             a :class:`bayesmotion.model.rollout.Rollout`.
@@ -217,9 +226,10 @@ class FittedHGPDM:
                       if k != f and k in self.levels and v is not None}
             return matched_transition(self, f, values[f], n_frames, n_samples, start, seed,
                                       lookahead=lookahead, sample_memory=sample_memory,
-                                      **others)
+                                      dynamics_style=dynamics_style, **others)
         return generate(self, emotion, couple, n_frames, n_samples, start, seed,
-                        sample_memory=sample_memory, lookahead=lookahead, **styles)
+                        sample_memory=sample_memory, lookahead=lookahead,
+                        dynamics_style=dynamics_style, **styles)
 
     def with_calibration(self, calibration: dict) -> FittedHGPDM:
         """This model with the emotion evidence's calibration ``calibration`` (at least

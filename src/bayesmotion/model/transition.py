@@ -162,12 +162,14 @@ def check_matched(model, t: Transition, n_frames: int) -> int:
 
 def matched_transition(model, factor: str, t: Transition, n_frames: int, n_samples: int = 0,
                        start=None, seed: int = 0, lookahead: float = 0.0,
-                       sample_memory: int = 0, **styles) -> Rollout:
+                       sample_memory: int = 0, dynamics_style: str = "requested",
+                       **styles) -> Rollout:
     """The rollout of a matched Transition of style factor ``factor`` (module docstring);
     ``styles`` holds every other factor's value, as given to ``generate``."""
     s0 = check_matched(model, t, n_frames)
     o = model.spec.order
-    common = {"seed": seed, "lookahead": lookahead, "sample_memory": sample_memory}
+    common = {"seed": seed, "lookahead": lookahead, "sample_memory": sample_memory,
+              "dynamics_style": dynamics_style}
 
     def run(value, frames, first, n, **kw):
         return generate(model, n_frames=frames, n_samples=n, start=first,
