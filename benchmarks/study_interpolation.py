@@ -137,6 +137,7 @@ class Settings:
     periodic: bool = False  # HGPDM(periodic=True): each clip's end loops back to its phase
     rest_frames: bool = False  # HGPDM(rest_frames=True, canonical_side=True)
     lookahead: float = 0.0  # generate(lookahead=...) of the H-GPDM's rollouts
+    dynamics_style: str = "requested"  # generate(dynamics_style=...) of the H-GPDM's rollouts
     n_harmonics: int = 5
     seed: int = 0
     infer_s: tuple[float, ...] = (0.0, 0.5, 1.0)
@@ -385,7 +386,7 @@ def gen_hgpdm(model, train: MotionDataset, content: str, emotion: str, s: float,
     start = next(i for i, t in enumerate(train)
                  if t.labels["content"] == content and t.labels["emotion"] == dominant)
     roll = model.generate(emotion=coords, n_frames=cfg.gen_frames, start=start,
-                          lookahead=cfg.lookahead)
+                          lookahead=cfg.lookahead, dynamics_style=cfg.dynamics_style)
     return roll.to_motion()[0], {"extrapolated": roll.extrapolated, "start": roll.start,
                                  "latent_distance": latent_distance(model, roll.I)}
 
@@ -917,18 +918,20 @@ def result_name(cfg: Settings) -> str:
     (``_learned_styles`` with ``--optimize-style``, ``_shared_latents`` with ``--init shared``,
     ``_phase_latents`` with ``--init phase``, ``_rest_frames`` with ``--rest-frames``,
     ``_periodic`` with ``--periodic``, ``_lookahead`` with ``--lookahead W > 0``;
-    ``_synthesis_setup`` alone for :func:`synthesis_setup`'s settings)."""
+    ``_synthesis_setup`` alone for :func:`synthesis_setup`'s settings; ``_nearest_dynamics``
+    last with ``--dynamics-style nearest``)."""
+    last = "_nearest_dynamics" if cfg.dynamics_style == "nearest" else ""
     if synthesis_setup(cfg) == cfg:
         return (NAME + ("_learned_styles" if cfg.optimize_style else "")
                 + ("_shared_latents" if cfg.latent_init == "shared" else "")
                 + ("_phase_latents" if cfg.latent_init == "phase" else "")
-                + "_synthesis_setup")
+                + "_synthesis_setup" + last)
     return (NAME + ("_learned_styles" if cfg.optimize_style else "")
             + ("_shared_latents" if cfg.latent_init == "shared" else "")
             + ("_phase_latents" if cfg.latent_init == "phase" else "")
             + ("_rest_frames" if cfg.rest_frames else "")
             + ("_periodic" if cfg.periodic else "")
-            + ("_lookahead" if cfg.lookahead > 0 else ""))
+            + ("_lookahead" if cfg.lookahead > 0 else "") + last)
 
 
 def main(argv=None) -> int:
@@ -950,6 +953,10 @@ def main(argv=None) -> int:
                     help="fit HGPDM(periodic=True): each clip's end loops back to its phase")
     ap.add_argument("--lookahead", type=float, default=0.0,
                     help="roll the H-GPDM out with generate(lookahead=W)")
+    ap.add_argument("--dynamics-style", choices=("requested", "nearest"), default="requested",
+                    help="roll the H-GPDM out with generate(dynamics_style=...): 'nearest' "
+                         "runs the dynamics at the trained emotion nearest the coordinates "
+                         "and blends only the mapping")
     ap.add_argument("--synthesis-setup", action="store_true",
                     help="the synthesis benchmark's walk fit and rollouts (synthesis_setup: "
                          "whole clips at 10 fps, latent dimensions 6 / 6, rest frames, "
@@ -977,7 +984,8 @@ def main(argv=None) -> int:
         cfg = replace(cfg, latent_init=a.init)
     if a.lookahead < 0:
         ap.error(f"--lookahead must be >= 0, got {a.lookahead}")
-    cfg = replace(cfg, periodic=a.periodic, lookahead=a.lookahead, rest_frames=a.rest_frames)
+    cfg = replace(cfg, periodic=a.periodic, lookahead=a.lookahead, rest_frames=a.rest_frames,
+                  dynamics_style=a.dynamics_style)
     if a.synthesis_setup:
         if a.lookahead not in (0.0, 10.0):
             ap.error(f"--synthesis-setup rolls out with look-ahead 10; --lookahead "

@@ -300,6 +300,16 @@ def test_periodic_and_lookahead_settings_reach_the_fit_and_the_rollouts(bandai_r
     np.testing.assert_array_equal(motion.values, want.to_motion()[0].values)
     plain, _ = study.gen_hgpdm(model, train, content, emotion, 0.75, replace(cfg, lookahead=0.0))
     assert not np.allclose(plain.values, motion.values)
+    # --dynamics-style nearest reaches the rollouts and the file's name
+    near_cfg = replace(cfg, dynamics_style="nearest")
+    assert study.result_name(near_cfg) == "study_interpolation_periodic_lookahead_nearest_dynamics"
+    assert study.result_name(study.synthesis_setup(replace(near_cfg, latent_init="shared"))) == (
+        "study_interpolation_shared_latents_synthesis_setup_nearest_dynamics")
+    near, _ = study.gen_hgpdm(model, train, content, emotion, 0.75, near_cfg)
+    want = model.generate(emotion=coords, n_frames=cfg.gen_frames, start=start, lookahead=10.0,
+                          dynamics_style="nearest")
+    np.testing.assert_array_equal(near.values, want.to_motion()[0].values)
+    assert not np.allclose(near.values, motion.values)
 
 
 def test_synthesis_setup_is_the_synthesis_benchmarks_walk_fit(bandai_root):
