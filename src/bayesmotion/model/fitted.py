@@ -207,8 +207,11 @@ class FittedHGPDM:
                 state to the actors' latents at the requested coordinates, so a rollout
                 between emotions follows one emotion's learned trajectory and is modulated
                 towards the other by the mapping. At one-hot coordinates both are the same.
-                On the Bandai walks mixed coordinates then move the motion along the neutral
-                -> emotion direction in proportion (docs/model.md, emotion interpolation).
+                On the Bandai walks the mixed rollouts then stay on the training latents and
+                their clip features move from the neutral's to the emotion's in proportion
+                to the coordinate (docs/model.md, emotion interpolation; ``benchmarks/
+                results/study_interpolation_shared_latents_synthesis_setup_nearest_dynamics
+                .json``).
             **styles: values for any other style factor of the model.
         Returns:
             a :class:`bayesmotion.model.rollout.Rollout`.

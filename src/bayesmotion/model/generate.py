@@ -434,6 +434,8 @@ def dynamics_coords(coords: np.ndarray, dynamics_style: str) -> np.ndarray:
 
 
 def check_dynamics_style(dynamics_style) -> str:
+    """``dynamics_style`` if it is one of ``DYNAMICS_STYLES``; else a BayesmotionError naming
+    them."""
     if not isinstance(dynamics_style, str) or dynamics_style not in DYNAMICS_STYLES:
         raise BayesmotionError(f"dynamics_style must be one of {list(DYNAMICS_STYLES)}, got "
                                f"{dynamics_style!r}")
