@@ -30,6 +30,20 @@ if _OWN_CACHE:
     # out the many small programs each new process (a CLI call, a notebook kernel) compiles
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
+# How much work XLA puts into optimising each compiled program. Most tests fit or infer on
+# small models at shapes of their own, so compiling dominates them, and XLA's optimisation
+# passes cost more than they save: those tests compile with jax_disable_most_optimizations
+# (the same programs with fewer optimisations; their answers agree with the optimised ones to
+# rounding). The tests marked ``optimized``, whose long chains and fits run for longer than
+# they compile, compile as users' programs do. Over the whole suite on 2 cores this took the
+# summed test time from 3,127 s to 2,777 s with every test unoptimised, the marked ones
+# 400 s of that slower. BAYESMOTION_TEST_COMPILE=optimized compiles every test as users' programs
+# are compiled. The variable below is what JAX reads in the subprocesses and notebook kernels
+# a test starts; pytest_runtest_setup sets it, and the in-process flag, for each test.
+_COMPILE_ALL_OPTIMISED = os.environ.get("BAYESMOTION_TEST_COMPILE", "auto") == "optimized"
+if _COMPILE_ALL_OPTIMISED:
+    os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "false"
+
 # The test modules import arviz; two workers importing it for the first time on one day race on
 # its daily stamp file. import_arviz survives that race, so each worker imports arviz through it
 # before any test module does.
@@ -51,6 +65,23 @@ def pytest_collection_modifyitems(session, config, items):
     taken first, the short files fill in around it."""
     heavy = {item.path for item in items if item.get_closest_marker("slow")}
     items.sort(key=lambda item: item.path not in heavy)  # stable: the order within a file holds
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    """Each test's compilation effort (above), set before its fixtures are."""
+    if _COMPILE_ALL_OPTIMISED:
+        return
+    import jax
+
+    unoptimised = item.get_closest_marker("optimized") is None
+    if jax.config.values["jax_disable_most_optimizations"] != unoptimised:
+        # the programs already compiled in this process were compiled the other way: drop
+        # them, so that the test runs what its own setting compiles (the persistent cache
+        # keys each program by its compile options and keeps both)
+        jax.clear_caches()
+        jax.config.update("jax_disable_most_optimizations", unoptimised)
+    os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "true" if unoptimised else "false"
 
 
 def pytest_runtest_teardown(item, nextitem):

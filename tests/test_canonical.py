@@ -94,6 +94,7 @@ def three_emotions():
 
 
 @pytest.mark.slow
+@pytest.mark.optimized
 def test_default_sampler_with_canonical_de_agrees_with_nuts_on_three_emotions(three_emotions):
     # the default moves on a model with a rotated (3-level) style factor: DE on the LQ factor,
     # the rotations, the independence step (after the adaptation, on the hyperparameters and
@@ -126,6 +127,7 @@ def test_default_sampler_with_canonical_de_agrees_with_nuts_on_three_emotions(th
 
 
 @pytest.mark.slow
+@pytest.mark.optimized
 def test_a_resumed_run_recomputes_the_canonical_proposal_bit_for_bit(three_emotions, tmp_path,
                                                                        monkeypatch):
     # the proposal after the adaptation is computed from the file's stored chain: a run

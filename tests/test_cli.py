@@ -145,6 +145,7 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
 
 
 @pytest.mark.slow
+@pytest.mark.optimized
 def test_demo_quick_writes_every_file(tmp_path):
     out = tmp_path / "demo"
     r = run("demo", "--quick", "--out", str(out))

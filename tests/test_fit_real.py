@@ -39,6 +39,7 @@ def test_handshake_fit_decreases_and_separates_emotions(handshake_model):
 
 
 @pytest.mark.slow
+@pytest.mark.optimized
 def test_bandai_walks_one_actor_fit_converges(bandai_root):
     walks = bm.load_bandai(bandai_root, content=["walk", "walk-back", "walk-left",
                                                  "walk-right"], fps=7.5)

@@ -232,6 +232,7 @@ RESUME_SCRIPT = textwrap.dedent("""
 
 
 @pytest.mark.slow
+@pytest.mark.optimized
 def test_killed_run_resumes_from_hdf5_without_losing_samples(tiny_model, tmp_path,
                                                             monkeypatch):
     import os
@@ -280,6 +281,7 @@ def test_killed_run_resumes_from_hdf5_without_losing_samples(tiny_model, tmp_pat
 
 
 @pytest.mark.slow
+@pytest.mark.optimized
 def test_emcee_and_nuts_agree_on_a_small_model(tiny_model):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)

@@ -11,6 +11,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 @pytest.mark.slow
+@pytest.mark.optimized
 def test_readme_quick_start_runs(capsys):
     text = README.read_text()
     block = re.search(r"## Library quick start\s+```python\n(.*?)```", text, re.S).group(1)
