@@ -34,12 +34,13 @@ if _OWN_CACHE:
 # small models at shapes of their own, so compiling dominates them, and XLA's optimisation
 # passes cost more than they save: those tests compile with jax_disable_most_optimizations
 # (the same programs with fewer optimisations; their answers agree with the optimised ones to
-# rounding). The tests marked ``optimized``, whose long chains and fits run for longer than
-# they compile, compile as users' programs do. Over the whole suite on 2 cores this took the
-# summed test time from 3,127 s to 2,777 s with every test unoptimised, the marked ones
-# 400 s of that slower. BAYESMOTION_TEST_COMPILE=optimized compiles every test as users' programs
-# are compiled. The variable below is what JAX reads in the subprocesses and notebook kernels
-# a test starts; pytest_runtest_setup sets it, and the in-process flag, for each test.
+# rounding, test_compile_effort.py). The tests marked ``optimized``, whose long chains and fits
+# run for longer than they compile, compile as users' programs do (unoptimised, those seven
+# ran 400 s longer in all). Measured on a 2-core CPU, two workers: the whole suite's summed
+# test time 2,580 s this way against 3,127 s with every test optimised (21:47 against 26:29
+# wall). BAYESMOTION_TEST_COMPILE=optimized compiles every test as users' programs are
+# compiled. JAX_DISABLE_MOST_OPTIMIZATIONS is what JAX reads in the subprocesses and notebook
+# kernels a test starts; pytest_runtest_setup sets it, and the in-process flag, for each test.
 _COMPILE_ALL_OPTIMISED = os.environ.get("BAYESMOTION_TEST_COMPILE", "auto") == "optimized"
 if _COMPILE_ALL_OPTIMISED:
     os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "false"
