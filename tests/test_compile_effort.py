@@ -13,8 +13,7 @@ import pytest
 
 ALL_OPTIMISED = os.environ.get("BAYESMOTION_TEST_COMPILE", "auto") == "optimized"
 
-PROBE = ("import jax; from jax._src import compiler; "
-         "print(compiler._DISABLE_MOST_OPTIMIZATIONS.value)")
+PROBE = "import jax; print(jax.config.values['jax_disable_most_optimizations'])"
 
 
 def _subprocess_flag():
