@@ -919,8 +919,8 @@ def result_name(cfg: Settings) -> str:
     ``_phase_latents`` with ``--init phase``, ``_rest_frames`` with ``--rest-frames``,
     ``_periodic`` with ``--periodic``, ``_lookahead`` with ``--lookahead W > 0``;
     ``_synthesis_setup`` alone for :func:`synthesis_setup`'s settings; ``_nearest_dynamics``
-    last with ``--dynamics-style nearest``)."""
-    last = "_nearest_dynamics" if cfg.dynamics_style == "nearest" else ""
+    or ``_registered_dynamics`` last with ``--dynamics-style nearest`` or ``registered``)."""
+    last = "" if cfg.dynamics_style == "requested" else f"_{cfg.dynamics_style}_dynamics"
     if synthesis_setup(cfg) == cfg:
         return (NAME + ("_learned_styles" if cfg.optimize_style else "")
                 + ("_shared_latents" if cfg.latent_init == "shared" else "")
@@ -953,10 +953,12 @@ def main(argv=None) -> int:
                     help="fit HGPDM(periodic=True): each clip's end loops back to its phase")
     ap.add_argument("--lookahead", type=float, default=0.0,
                     help="roll the H-GPDM out with generate(lookahead=W)")
-    ap.add_argument("--dynamics-style", choices=("requested", "nearest"), default="requested",
+    ap.add_argument("--dynamics-style", choices=("requested", "nearest", "registered"),
+                    default="requested",
                     help="roll the H-GPDM out with generate(dynamics_style=...): 'nearest' "
                          "runs the dynamics at the trained emotion nearest the coordinates "
-                         "and blends only the mapping")
+                         "and blends only the mapping; 'registered' rolls out each emotion "
+                         "at its own level and blends the time-registered paths")
     ap.add_argument("--synthesis-setup", action="store_true",
                     help="the synthesis benchmark's walk fit and rollouts (synthesis_setup: "
                          "whole clips at 10 fps, latent dimensions 6 / 6, rest frames, "

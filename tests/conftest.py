@@ -151,6 +151,37 @@ def make_tiny_dataset(fps=5.0):
     return bm.MotionDataset(ds.trials, {"emotion": ("happy", "sad"), "couple": ("c1",)})
 
 
+def synthetic_walk(base, fps: float, n_frames: int, hz: float, swing: float):
+    """``base``'s first pose walking: the hips travel forward (towards the toes) at 1.4 hip
+    heights per second and bob; the legs swing ``swing`` degrees at ``hz`` steps per second in
+    opposite phase, the knees bend, the arms swing against the legs."""
+    import numpy as np
+
+    from bayesmotion.data import Motion
+
+    sk = base.skeleton
+
+    def column(joint: str, channel: str) -> int:
+        j = sk.index(joint)
+        return sk.channel_offsets[j] + sk.channels[j].index(channel)
+
+    t = np.arange(n_frames) / fps
+    phase = 2 * np.pi * hz * t
+    v = np.repeat(base.values[:1], n_frames, axis=0)
+    for side, sign in (("Left", 1.0), ("Right", -1.0)):
+        v[:, column(f"{side}UpLeg", "Xrotation")] += sign * swing * np.sin(phase)
+        v[:, column(f"{side}Leg", "Xrotation")] += 0.3 * swing * (1 - sign * np.cos(phase))
+        v[:, column(f"{side}Arm", "Yrotation")] -= sign * 0.6 * swing * np.sin(phase)
+    P = base.positions()[0]
+    forward = np.cross(P[sk.index("RightUpLeg")] - P[sk.index("LeftUpLeg")], [0.0, 1.0, 0.0])
+    forward[1] = 0.0
+    forward *= np.sign(forward @ (P[sk.index("LeftToeBase")] - P[sk.index("LeftFoot")]))
+    forward /= np.linalg.norm(forward)
+    v[:, :3] += np.outer(1.4 * P[0, 1] * t, forward)
+    v[:, 1] += 0.03 * P[0, 1] * np.cos(2 * phase)
+    return Motion(sk, v, fps, "walk")
+
+
 @pytest.fixture(scope="session")
 def tiny_model():
     """A 6-trial, 54-frame model (latent dims 3) fitted for 60 iterations."""

@@ -31,7 +31,7 @@ import pytest
 
 import bayesmotion as bm
 from bayesmotion.data import Motion, MotionDataset, Trial
-from tests.conftest import make_tiny_dataset
+from tests.conftest import make_tiny_dataset, synthetic_walk
 
 SCRIPT = Path(__file__).with_name("blender_import_bvh.py")
 FRAME_START = 10  # not Blender's default 1, so an ignored or off-by-one start shows
@@ -99,33 +99,6 @@ def test_blender_reads_a_generated_handshake_as_the_package_does(blender, tiny_m
     for path, motion in zip(paths, motions, strict=True):
         assert {"Hips", "Head", "LeftHand", "RightFoot"} <= set(motion.skeleton.names)
         check_round_trip(motion, read[str(path)])
-
-
-def synthetic_walk(base: Motion, fps: float, n_frames: int, hz: float, swing: float) -> Motion:
-    """``base``'s first pose walking: the hips travel forward (towards the toes) at 1.4 hip
-    heights per second and bob; the legs swing ``swing`` degrees at ``hz`` steps per second in
-    opposite phase, the knees bend, the arms swing against the legs."""
-    sk = base.skeleton
-
-    def column(joint: str, channel: str) -> int:
-        j = sk.index(joint)
-        return sk.channel_offsets[j] + sk.channels[j].index(channel)
-
-    t = np.arange(n_frames) / fps
-    phase = 2 * np.pi * hz * t
-    v = np.repeat(base.values[:1], n_frames, axis=0)
-    for side, sign in (("Left", 1.0), ("Right", -1.0)):
-        v[:, column(f"{side}UpLeg", "Xrotation")] += sign * swing * np.sin(phase)
-        v[:, column(f"{side}Leg", "Xrotation")] += 0.3 * swing * (1 - sign * np.cos(phase))
-        v[:, column(f"{side}Arm", "Yrotation")] -= sign * 0.6 * swing * np.sin(phase)
-    P = base.positions()[0]
-    forward = np.cross(P[sk.index("RightUpLeg")] - P[sk.index("LeftUpLeg")], [0.0, 1.0, 0.0])
-    forward[1] = 0.0
-    forward *= np.sign(forward @ (P[sk.index("LeftToeBase")] - P[sk.index("LeftFoot")]))
-    forward /= np.linalg.norm(forward)
-    v[:, :3] += np.outer(1.4 * P[0, 1] * t, forward)
-    v[:, 1] += 0.03 * P[0, 1] * np.cos(2 * phase)
-    return Motion(sk, v, fps, "walk")
 
 
 @pytest.mark.slow

@@ -47,6 +47,9 @@ from bayesmotion.model.predict import (
     style_vectors,
     whiten,
 )
+from bayesmotion.model.registration import MAX_SLOPE as REG_MAX_SLOPE
+from bayesmotion.model.registration import blend as reg_blend
+from bayesmotion.model.registration import registration
 from bayesmotion.model.rollout import Rollout
 from bayesmotion.validate import check_generate_args, check_generate_memory, integer
 
@@ -418,9 +421,10 @@ def check_lookahead(lookahead, sample_memory: int) -> float:
     return float(lookahead)
 
 
-DYNAMICS_STYLES = ("requested", "nearest")
+DYNAMICS_STYLES = ("requested", "nearest", "registered")
 """Where a rollout's dynamics runs (``generate(dynamics_style=...)``): at the requested style
-coordinates, or at the trained level nearest them (:func:`dynamics_coords`)."""
+coordinates, at the trained level nearest them (:func:`dynamics_coords`), or at each level
+with weight, the levels' paths registered in time and blended (:func:`_registered`)."""
 
 
 def dynamics_coords(coords: np.ndarray, dynamics_style: str) -> np.ndarray:
@@ -467,6 +471,48 @@ def check_decodes(model) -> None:
     for codec in model.codecs:
         if not codec.decodes:
             codec.decode()  # raises with the reason
+
+
+class LatentPaths(NamedTuple):
+    """A rollout's latent paths: the predictor restricted to its styles ``P``, the interaction
+    style vectors ``int_s``, the mean path ``I`` (T, Q_I) with its one-step variance ``I_var``
+    (T,) (0 at the start frames) and the sampled paths ``I_s`` (S, T, Q_I) or None."""
+
+    P: Predictor
+    int_s: tuple
+    I: np.ndarray
+    I_var: np.ndarray
+    I_s: np.ndarray | None
+
+
+def latent_paths(model, P: Predictor, coords: dict, I0: np.ndarray, n_frames: int,
+                 n_samples: int, seed: int, sample_memory: int, lookahead: float,
+                 dynamics_style: str) -> LatentPaths:
+    """The dynamics rolled out from the start state ``I0`` (order, Q_I) at the per-frame
+    style coordinates ``coords`` (factor -> (n_frames, K)): the mean path and ``n_samples``
+    sampled ones, each checked to be bounded."""
+    o = I0.shape[0]
+    dyn_f, int_f = model.spec.dynamics_factors, model.spec.interaction_factors
+    dyn_s = tuple(style_vectors(P, dyn_f, [dynamics_coords(coords[f], dynamics_style)[o:]
+                                           for f in dyn_f]))
+    int_s = tuple(style_vectors(P, int_f, [coords[f] for f in int_f]))
+    P = restrict_to_styles(P, dyn_s, int_s)  # exact: drops the style cells no frame sees
+    key = jax.random.PRNGKey(seed)
+    guide = {"guided": lookahead > 0, "lookahead": lookahead}
+    I_gen, I_var = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n_frames - o, False,
+                                    **guide)
+    I = np.concatenate([I0, np.asarray(I_gen)])
+    reach = np.concatenate([np.asarray(model.params["I"]), I0])  # a given start counts too
+    check_bounded(I, reach, model.spec.dynamics_linear)
+    I_s = None
+    if n_samples:
+        keys = jax.random.split(key, n_samples + 1)[1:]
+        roll = jax.vmap(lambda k: dynamics_rollout(P, jnp.asarray(I0), dyn_s, k, n_frames - o,
+                                                   True, memory=sample_memory, **guide)[0])
+        I_s = np.concatenate([np.broadcast_to(I0, (n_samples, o, I0.shape[1])),
+                              np.asarray(roll(keys))], axis=1)
+        check_bounded(I_s, reach, model.spec.dynamics_linear)
+    return LatentPaths(P, int_s, I, np.concatenate([np.zeros(o), np.asarray(I_var)]), I_s)
 
 
 def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_samples: int = 0,
@@ -517,34 +563,128 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
             raise BayesmotionError(f"start must be a trial index, 'prior' or an array of shape "
                                    f"{(o, model.spec.interaction_dim)}, got {I0.shape}")
         r, desc = start_trial(model, coords, None), "given latent state"
-    dyn_f, int_f = model.spec.dynamics_factors, model.spec.interaction_factors
-    dyn_s = tuple(style_vectors(P, dyn_f, [dynamics_coords(coords[f], dynamics_style)[o:]
-                                           for f in dyn_f]))
-    int_s = tuple(style_vectors(P, int_f, [coords[f] for f in int_f]))
-    P = restrict_to_styles(P, dyn_s, int_s)  # exact: drops the style cells no frame sees
-    key = jax.random.PRNGKey(seed)
-    guide = {"guided": lookahead > 0, "lookahead": lookahead}
-    I_gen, I_var = dynamics_rollout(P, jnp.asarray(I0), dyn_s, key, n_frames - o, False,
-                                    **guide)
-    I = np.concatenate([I0, np.asarray(I_gen)])
-    reach = np.concatenate([np.asarray(model.params["I"]), I0])  # a given start counts too
-    check_bounded(I, reach, model.spec.dynamics_linear)
-    I_var = np.concatenate([np.zeros(o), np.asarray(I_var)])[:, None] * np.ones_like(I)
-    mean = _map_and_decode(model, P, jnp.asarray(I), int_s, r)
+    if dynamics_style == "registered":
+        return _registered(model, P, coords, n_frames, n_samples, r, desc, start, seed,
+                           sample_memory, lookahead)
+    paths = latent_paths(model, P, coords, I0, n_frames, n_samples, seed, sample_memory,
+                         lookahead, dynamics_style)
+    mean = _map_and_decode(model, paths.P, jnp.asarray(paths.I), paths.int_s, r)
     samples = sample_var = None
     if n_samples:
-        keys = jax.random.split(key, n_samples + 1)[1:]
-        roll = jax.vmap(lambda k: dynamics_rollout(P, jnp.asarray(I0), dyn_s, k, n_frames - o,
-                                                   True, memory=sample_memory, **guide)[0])
-        I_s = np.concatenate([np.broadcast_to(I0, (n_samples, o, I0.shape[1])),
-                              np.asarray(roll(keys))], axis=1)
-        check_bounded(I_s, reach, model.spec.dynamics_linear)
-        samples = {"I": I_s, **_map_and_decode_samples(model, P, jnp.asarray(I_s), int_s, r)}
+        samples = {"I": paths.I_s, **_map_and_decode_samples(model, paths.P,
+                                                             jnp.asarray(paths.I_s),
+                                                             paths.int_s, r)}
         sample_var = {k: v.var(0) for k, v in samples.items()}
+    I = paths.I
+    I_var = paths.I_var[:, None] * np.ones_like(I)
     return Rollout(fps=model.fps, styles=coords,
                    extrapolated=any(is_extrapolated(c) for c in coords.values()), start=desc,
                    n_observed=o, I=I, I_var=I_var, skeletons=mean.pop("skeletons"),
                    samples=samples, sample_var=sample_var, **mean)
+
+
+def _registered(model, P, coords: dict, n_frames: int, n_samples: int, r: int, desc: str,
+                start, seed: int, sample_memory: int, lookahead: float) -> Rollout:
+    """``generate(dynamics_style="registered")``: each level with weight rolls out at its
+    own vertex from its own training trial, and the levels' paths are registered in time and
+    blended by the coordinates in every layer (:mod:`bayesmotion.model.registration`)."""
+    if start is not None and not isinstance(start, int | np.integer):
+        raise BayesmotionError("a registered rollout starts each level from one of its own "
+                               "training trials: give start as a trial index or None")
+    f, w = _mixed_factor(coords)
+    levels = [int(k) for k in np.flatnonzero(np.abs(w) > 1e-12)]
+    ref = _reference_level(model, f, w, levels, r, start)
+    trials = {k: r if k == ref else _companion_trial(model, r, f, k) for k in levels}
+    o, A = model.spec.order, model.n_actors
+    n_ref = n_frames if len(levels) == 1 else 2 * n_frames + o + 2
+    per_level = []
+    for k in levels:
+        L = n_ref if k == ref else REG_MAX_SLOPE * n_ref
+        vc = {g: np.broadcast_to(np.eye(c.shape[1])[k] if g == f else c[0], (L, c.shape[1]))
+              for g, c in coords.items()}
+        I0 = model.latents(trials[k])["I"][:o]
+        lp = latent_paths(model, P, vc, I0, L, n_samples, seed + k, sample_memory, lookahead,
+                          "requested")
+        layers_out, X_var = map_down(lp.P, jnp.asarray(lp.I), lp.int_s, A)
+        lv = {"I": lp.I, "I_var": lp.I_var, "X_var": np.asarray(X_var) * np.ones(L),
+              "X": np.stack([np.asarray(x) for x, _, _ in layers_out]),
+              "Y": np.stack([np.asarray(y) for _, y, _ in layers_out]),
+              "Y_var": np.stack([np.asarray(v) * np.ones(L) for _, _, v in layers_out])}
+        if n_samples:
+            outs = jax.vmap(lambda I, P=lp.P, s=lp.int_s: map_down_mean(P, I, s, A))(
+                jnp.asarray(lp.I_s))
+            lv["I_s"] = lp.I_s
+            lv["X_s"] = np.stack([np.asarray(x) for x, _ in outs], axis=1)  # (S, A, L, Q_X)
+            lv["Y_s"] = np.stack([np.asarray(y) for _, y in outs], axis=1)
+        per_level.append(lv)
+    times = registration([np.concatenate(list(lv["Y"]), axis=1) for lv in per_level],
+                         w[levels], levels.index(ref), n_frames, model.fps)
+    wk = w[levels]
+
+    def mix(key, axis=0, power=1):
+        return reg_blend([lv[key] for lv in per_level], times, wk, axis, power)
+
+    mean = decode_mean(model, mix("X", 1), mix("X_var", 0, 2), mix("Y", 1),
+                       mix("Y_var", 1, 2), r)
+    samples = sample_var = None
+    if n_samples:
+        Y_s = mix("Y_s", 2)
+        samples = {"I": mix("I_s", 1), "X": mix("X_s", 2), "Y": Y_s,
+                   **decode_samples(model, Y_s, r)}
+        sample_var = {k: v.var(0) for k, v in samples.items()}
+    I = mix("I")
+    names = ", ".join(f"{model.levels[f][k]} from trial {trials[k]} "
+                      f"({model.trials[trials[k]].name})" for k in levels)
+    return Rollout(fps=model.fps, styles=coords,
+                   extrapolated=any(is_extrapolated(c) for c in coords.values()),
+                   start=f"registered blend of {f} levels: {names}", n_observed=o, I=I,
+                   I_var=mix("I_var", 0, 2)[:, None] * np.ones_like(I),
+                   skeletons=mean.pop("skeletons"), samples=samples, sample_var=sample_var,
+                   **mean)
+
+
+def _mixed_factor(coords: dict) -> tuple[str, np.ndarray]:
+    """The one factor whose (constant) coordinates a registered rollout blends, and its
+    coordinates (K,); the others must be at a vertex."""
+    for g, c in coords.items():
+        if not np.allclose(c, c[0]):
+            raise BayesmotionError(f"a registered rollout blends constant coordinates; {g} "
+                                   f"changes along the rollout (a Transition or per-frame "
+                                   f"array): use dynamics_style='requested' or 'nearest'")
+    vertex = {g: np.sum(np.abs(c[0]) > 1e-12) == 1 and np.isclose(c[0].max(), 1.0)
+              for g, c in coords.items()}
+    mixed = [g for g, v in vertex.items() if not v]
+    if len(mixed) > 1:
+        raise BayesmotionError(f"a registered rollout blends one style factor; {mixed} are "
+                               f"all between levels")
+    f = mixed[0] if mixed else ("emotion" if "emotion" in coords else next(iter(coords)))
+    return f, np.asarray(coords[f][0], np.float64)
+
+
+def _reference_level(model, f: str, w: np.ndarray, levels: list[int], r: int, start) -> int:
+    """The level whose timeline the blend follows: the given start trial's level when its
+    weight is the largest (ties included), else the largest weight's (the first of equal)."""
+    if start is not None:
+        k = model.levels[f].index(model.trials[r].labels[f])
+        if k in levels and w[k] >= w[levels].max() - 1e-12:
+            return k
+        raise BayesmotionError(f"start trial {r} is {f} {model.trials[r].labels[f]!r}, not a "
+                               f"level of the largest weight in {w.tolist()}: a registered "
+                               f"blend follows the timing of that level's trial")
+    return max(levels, key=lambda k: (w[k], -k))
+
+
+def _companion_trial(model, r: int, f: str, k: int) -> int:
+    """The training trial level ``k`` of factor ``f`` starts from: the longest whose labels
+    other than ``f`` equal trial ``r``'s (the same content, couple, ...), else the longest of
+    level ``k`` with trial ``r``'s labels of the model's other factors."""
+    want = dict(model.trials[r].labels, **{f: model.levels[f][k]})
+    for keys in (set(want), set(model.spec.factors)):
+        match = [q for q, t in enumerate(model.trials)
+                 if all(t.labels.get(key) == want[key] for key in keys)]
+        if match:
+            return max(match, key=lambda q: model.trials[q].n_frames)
+    raise BayesmotionError(f"no training trial has {f} {model.levels[f][k]!r}")
 
 
 def _check_trained_levels(model, coords: dict) -> None:
