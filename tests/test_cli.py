@@ -93,6 +93,11 @@ def test_generate_writes_bvh_and_reports(capsys, tmp_path, tiny_model):
     near = bm.load_rollout(tmp_path / "gen_nearest" / "0.7_0.3_rollout.npz")
     np.testing.assert_allclose(near.Y, tiny_model.generate(
         emotion=[0.7, 0.3], n_frames=12, dynamics_style="nearest").Y, atol=1e-9)
+    assert main(["generate", str(model), "--emotion", "0.7,0.3", "--frames", "12",
+                 "--dynamics-style", "registered", "--out", str(tmp_path / "gen_reg")]) == 0
+    reg = bm.load_rollout(tmp_path / "gen_reg" / "0.7_0.3_rollout.npz")
+    np.testing.assert_allclose(reg.Y, tiny_model.generate(
+        emotion=[0.7, 0.3], n_frames=12, dynamics_style="registered").Y, atol=1e-9)
     assert "lookahead must be a finite number >= 0" in one_line_error(
         capsys, ["generate", str(model), "--lookahead", "-1", "--out", str(tmp_path)])
     assert "--sample-memory must be an integer in [0, 256]" in one_line_error(

@@ -170,10 +170,13 @@ def _parser() -> argparse.ArgumentParser:
                    help="keep long rollouts on the training latents: each step also lowers the "
                         "next step's predictive variance, with this weight (0: plain "
                         "predictive means; 10 keeps periodic walk models walking)")
-    g.add_argument("--dynamics-style", choices=("requested", "nearest"), default="requested",
+    g.add_argument("--dynamics-style", choices=("requested", "nearest", "registered"),
+                   default="requested",
                    help="where the dynamics runs at coordinates between levels: at them "
-                        "(requested, the default) or at the nearest level, the mapping alone "
-                        "at the coordinates (nearest; generate(dynamics_style=...))")
+                        "(requested, the default), at the nearest level with the mapping "
+                        "alone at the coordinates (nearest), or at each level, the levels' "
+                        "rollouts aligned in time and blended by the coordinates "
+                        "(registered; generate(dynamics_style=...))")
     g.add_argument("--pin-feet", action="store_true",
                    help="correct each actor's root path so planted feet do not glide "
                         "(bayesmotion.features.contacts.pin_feet)")
