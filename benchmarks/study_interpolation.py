@@ -4,6 +4,7 @@
                                              [--max-iter N] [--optimize-style]
                                              [--init shared|phase] [--rest-frames]
                                              [--periodic] [--lookahead W]
+                                             [--dynamics-style requested|nearest|registered]
                                              [--synthesis-setup] [--rescore] [--table]
 
 For each walk content and each emotion, four methods generate motion along the line from the
@@ -52,6 +53,9 @@ and ``--lookahead W`` rolls the H-GPDM out with ``generate(lookahead=W)``: with 
 settings on the study's 60-frame crops at 15 fps. ``--synthesis-setup`` also takes the synthesis
 benchmark's data and model size (:func:`synthesis_setup`: whole clips at 10 fps, interaction
 latents of dimension 6, 40-frame outputs), so every method is compared on that fit.
+``--dynamics-style nearest`` or ``registered`` rolls the H-GPDM out with
+``generate(dynamics_style=...)``: the dynamics at the nearest emotion, or each emotion's own
+rollout registered in time and blended (:mod:`bayesmotion.model.registration`).
 
 Per method and pair the summary gives the Spearman correlation of normalised strength with s
 over [0, 1], the fraction of increasing steps, the calibration error mean |strength(s) - s|,
