@@ -564,8 +564,11 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
                                    f"{(o, model.spec.interaction_dim)}, got {I0.shape}")
         r, desc = start_trial(model, coords, None), "given latent state"
     if dynamics_style == "registered":
-        return _registered(model, P, coords, n_frames, n_samples, r, desc, start, seed,
-                           sample_memory, lookahead)
+        f, w = registered_factor(coords)
+        if not _is_vertex(w):
+            return _registered(model, P, coords, f, w, n_frames, n_samples, start, seed,
+                               sample_memory, lookahead)
+        dynamics_style = "requested"  # at a level a registered rollout is the plain one
     paths = latent_paths(model, P, coords, I0, n_frames, n_samples, seed, sample_memory,
                          lookahead, dynamics_style)
     mean = _map_and_decode(model, paths.P, jnp.asarray(paths.I), paths.int_s, r)
@@ -583,108 +586,141 @@ def generate(model, emotion="neutral", couple=None, n_frames: int = 100, n_sampl
                    samples=samples, sample_var=sample_var, **mean)
 
 
-def _registered(model, P, coords: dict, n_frames: int, n_samples: int, r: int, desc: str,
+REGISTER_MAX_FRAMES = 4000
+"""The longest registered rollout: its warps keep a table of (2 T) x (4 T) one-byte steps per
+level (128 MB at 4,000 frames)."""
+
+
+def _registered(model, P, coords: dict, f: str, w: np.ndarray, n_frames: int, n_samples: int,
                 start, seed: int, sample_memory: int, lookahead: float) -> Rollout:
-    """``generate(dynamics_style="registered")``: each level with weight rolls out at its
-    own vertex from its own training trial, and the levels' paths are registered in time and
-    blended by the coordinates in every layer (:mod:`bayesmotion.model.registration`)."""
+    """``generate(dynamics_style="registered")`` between levels of factor ``f`` (coordinates
+    ``w``): each level with weight rolls out at its own vertex from one of its own training
+    trials, and the levels' paths are registered in time and blended by the coordinates in
+    every layer (:mod:`bayesmotion.model.registration`)."""
     if start is not None and not isinstance(start, int | np.integer):
         raise BayesmotionError("a registered rollout starts each level from one of its own "
                                "training trials: give start as a trial index or None")
-    f, w = _mixed_factor(coords)
+    if n_frames > REGISTER_MAX_FRAMES:
+        raise BayesmotionError(f"a registered rollout is at most {REGISTER_MAX_FRAMES} frames "
+                               f"(its time warps grow with the square of the length), got "
+                               f"{n_frames}")
     levels = [int(k) for k in np.flatnonzero(np.abs(w) > 1e-12)]
-    ref = _reference_level(model, f, w, levels, r, start)
-    trials = {k: r if k == ref else _companion_trial(model, r, f, k) for k in levels}
+    ref = _reference_level(model, f, w, levels, start)
+    r = int(start) if start is not None else _level_trial(model, coords, f, ref)
+    trials = {k: r if k == ref else _level_trial(model, coords, f, k, like=r) for k in levels}
     o, A = model.spec.order, model.n_actors
-    n_ref = n_frames if len(levels) == 1 else 2 * n_frames + o + 2
+    n_ref = 2 * n_frames + o + 2  # the blend's timing covers n_frames at any pace ratio
     per_level = []
-    for k in levels:
+    for n, k in enumerate(sorted(levels, key=lambda k: k != ref)):  # the reference first
         L = n_ref if k == ref else REG_MAX_SLOPE * n_ref
         vc = {g: np.broadcast_to(np.eye(c.shape[1])[k] if g == f else c[0], (L, c.shape[1]))
               for g, c in coords.items()}
-        I0 = model.latents(trials[k])["I"][:o]
-        lp = latent_paths(model, P, vc, I0, L, n_samples, seed + k, sample_memory, lookahead,
-                          "requested")
-        layers_out, X_var = map_down(lp.P, jnp.asarray(lp.I), lp.int_s, A)
-        lv = {"I": lp.I, "I_var": lp.I_var, "X_var": np.asarray(X_var) * np.ones(L),
-              "X": np.stack([np.asarray(x) for x, _, _ in layers_out]),
-              "Y": np.stack([np.asarray(y) for _, y, _ in layers_out]),
-              "Y_var": np.stack([np.asarray(v) * np.ones(L) for _, _, v in layers_out])}
-        if n_samples:
-            outs = jax.vmap(lambda I, P=lp.P, s=lp.int_s: map_down_mean(P, I, s, A))(
-                jnp.asarray(lp.I_s))
-            lv["I_s"] = lp.I_s
-            lv["X_s"] = np.stack([np.asarray(x) for x, _ in outs], axis=1)  # (S, A, L, Q_X)
-            lv["Y_s"] = np.stack([np.asarray(y) for _, y in outs], axis=1)
-        per_level.append(lv)
-    times = registration([np.concatenate(list(lv["Y"]), axis=1) for lv in per_level],
+        lp = latent_paths(model, P, vc, model.latents(trials[k])["I"][:o], L, n_samples,
+                          seed + n, sample_memory, lookahead, "requested")
+        per_level.append((k, _level_layers(lp, L, A, n_samples)))
+    per_level.sort(key=lambda kv: kv[0])
+    layers = [lv for _, lv in per_level]
+    times = registration([np.concatenate(list(lv["Y"]), axis=1) for lv in layers],
                          w[levels], levels.index(ref), n_frames, model.fps)
-    wk = w[levels]
+    # frames read only from every level's observed start frames are observed
+    n_obs = int(np.argmin(np.all(np.stack(times) <= o - 1, axis=0).tolist() + [False]))
 
     def mix(key, axis=0, power=1):
-        return reg_blend([lv[key] for lv in per_level], times, wk, axis, power)
+        return reg_blend([lv[key] for lv in layers], times, w[levels], axis, power)
 
     mean = decode_mean(model, mix("X", 1), mix("X_var", 0, 2), mix("Y", 1),
-                       mix("Y_var", 1, 2), r)
+                       mix("Y_var", 1, 2), r, n_observed=n_obs)
     samples = sample_var = None
     if n_samples:
         Y_s = mix("Y_s", 2)
         samples = {"I": mix("I_s", 1), "X": mix("X_s", 2), "Y": Y_s,
                    **decode_samples(model, Y_s, r)}
         sample_var = {k: v.var(0) for k, v in samples.items()}
-    I = mix("I")
+    I, I_var = mix("I"), mix("I_var", 0, 2)
+    I_var[:n_obs] = 0.0
     names = ", ".join(f"{model.levels[f][k]} from trial {trials[k]} "
                       f"({model.trials[trials[k]].name})" for k in levels)
     return Rollout(fps=model.fps, styles=coords,
                    extrapolated=any(is_extrapolated(c) for c in coords.values()),
-                   start=f"registered blend of {f} levels: {names}", n_observed=o, I=I,
-                   I_var=mix("I_var", 0, 2)[:, None] * np.ones_like(I),
-                   skeletons=mean.pop("skeletons"), samples=samples, sample_var=sample_var,
-                   **mean)
+                   start=f"registered blend of {f} levels: {names}", n_observed=n_obs, I=I,
+                   I_var=I_var[:, None] * np.ones_like(I), skeletons=mean.pop("skeletons"),
+                   samples=samples, sample_var=sample_var, **mean)
 
 
-def _mixed_factor(coords: dict) -> tuple[str, np.ndarray]:
-    """The one factor whose (constant) coordinates a registered rollout blends, and its
-    coordinates (K,); the others must be at a vertex."""
+def _level_layers(lp: LatentPaths, L: int, A: int, n_samples: int) -> dict:
+    """One level's latent paths mapped down: I, X (A, L, Q_X), Y (A, L, D) and their
+    variances; with samples, I_s, X_s (S, A, L, Q_X) and Y_s (S, A, L, D)."""
+    layers_out, X_var = map_down(lp.P, jnp.asarray(lp.I), lp.int_s, A)
+    lv = {"I": lp.I, "I_var": lp.I_var, "X_var": np.asarray(X_var) * np.ones(L),
+          "X": np.stack([np.asarray(x) for x, _, _ in layers_out]),
+          "Y": np.stack([np.asarray(y) for _, y, _ in layers_out]),
+          "Y_var": np.stack([np.asarray(v) * np.ones(L) for _, _, v in layers_out])}
+    if n_samples:
+        outs = jax.vmap(lambda I: map_down_mean(lp.P, I, lp.int_s, A))(jnp.asarray(lp.I_s))
+        lv["I_s"] = lp.I_s
+        lv["X_s"] = np.stack([np.asarray(x) for x, _ in outs], axis=1)
+        lv["Y_s"] = np.stack([np.asarray(y) for _, y in outs], axis=1)
+    return lv
+
+
+def _is_vertex(w: np.ndarray) -> bool:
+    return bool(np.sum(np.abs(w) > 1e-12) == 1 and np.isclose(w.max(), 1.0))
+
+
+def registered_factor(coords: dict) -> tuple[str, np.ndarray]:
+    """The one factor a registered rollout blends, and its (constant) coordinates (K,); the
+    other factors must be at a level. Raises BayesmotionError for coordinates that change
+    along the rollout, more than one factor between levels, or no level with weight."""
     for g, c in coords.items():
         if not np.allclose(c, c[0]):
             raise BayesmotionError(f"a registered rollout blends constant coordinates; {g} "
                                    f"changes along the rollout (a Transition or per-frame "
                                    f"array): use dynamics_style='requested' or 'nearest'")
-    vertex = {g: np.sum(np.abs(c[0]) > 1e-12) == 1 and np.isclose(c[0].max(), 1.0)
-              for g, c in coords.items()}
-    mixed = [g for g, v in vertex.items() if not v]
+    mixed = [g for g, c in coords.items() if not _is_vertex(np.asarray(c[0]))]
     if len(mixed) > 1:
         raise BayesmotionError(f"a registered rollout blends one style factor; {mixed} are "
                                f"all between levels")
     f = mixed[0] if mixed else ("emotion" if "emotion" in coords else next(iter(coords)))
-    return f, np.asarray(coords[f][0], np.float64)
+    w = np.asarray(coords[f][0], np.float64)
+    if not np.any(np.abs(w) > 1e-12):
+        raise BayesmotionError(f"{f} coordinates {w.tolist()} give no level any weight")
+    return f, w
 
 
-def _reference_level(model, f: str, w: np.ndarray, levels: list[int], r: int, start) -> int:
+def _reference_level(model, f: str, w: np.ndarray, levels: list[int], start) -> int:
     """The level whose timeline the blend follows: the given start trial's level when its
     weight is the largest (ties included), else the largest weight's (the first of equal)."""
     if start is not None:
-        k = model.levels[f].index(model.trials[r].labels[f])
+        if not 0 <= start < len(model.trials):
+            raise BayesmotionError(f"start trial {start} out of range "
+                                   f"(0-{len(model.trials) - 1})")
+        label = model.trials[start].labels[f]
+        k = model.levels[f].index(label)
         if k in levels and w[k] >= w[levels].max() - 1e-12:
             return k
-        raise BayesmotionError(f"start trial {r} is {f} {model.trials[r].labels[f]!r}, not a "
-                               f"level of the largest weight in {w.tolist()}: a registered "
-                               f"blend follows the timing of that level's trial")
+        raise BayesmotionError(f"start trial {start} is {f} {label!r}, not a level of the "
+                               f"largest weight in {w.tolist()}: a registered blend follows "
+                               f"the timing of that level's trial")
     return max(levels, key=lambda k: (w[k], -k))
 
 
-def _companion_trial(model, r: int, f: str, k: int) -> int:
-    """The training trial level ``k`` of factor ``f`` starts from: the longest whose labels
-    other than ``f`` equal trial ``r``'s (the same content, couple, ...), else the longest of
-    level ``k`` with trial ``r``'s labels of the model's other factors."""
-    want = dict(model.trials[r].labels, **{f: model.levels[f][k]})
-    for keys in (set(want), set(model.spec.factors)):
-        match = [q for q, t in enumerate(model.trials)
-                 if all(t.labels.get(key) == want[key] for key in keys)]
+def _level_trial(model, coords: dict, f: str, k: int, like: int | None = None) -> int:
+    """The training trial level ``k`` of factor ``f`` starts from: the longest of that level
+    whose other labels are trial ``like``'s (the same content, ...) with the requested levels
+    of the other factors; else the longest with the requested levels; else the longest of
+    the level."""
+    level = model.levels[f][k]
+    want = {g: model.levels[g][int(np.argmax(c[0]))] for g, c in coords.items() if g != f}
+    pools = [want, {}]
+    if like is not None:
+        pools.insert(0, {**{key: v for key, v in model.trials[like].labels.items()
+                            if key != f}, **want})
+    for extra in pools:
+        match = [q for q, t in enumerate(model.trials) if t.labels.get(f) == level
+                 and all(t.labels.get(key) == v for key, v in extra.items())]
         if match:
             return max(match, key=lambda q: model.trials[q].n_frames)
-    raise BayesmotionError(f"no training trial has {f} {model.levels[f][k]!r}")
+    raise BayesmotionError(f"no training trial has {f} {level!r}")
 
 
 def _check_trained_levels(model, coords: dict) -> None:
@@ -735,11 +771,11 @@ def _map_and_decode(model, P, I, int_s, trial, with_var=True):
     return decode_mean(model, X, np.asarray(X_var), Y, Y_var, trial)
 
 
-def decode_mean(model, X, X_var, Y, Y_var, trial: int) -> dict:
+def decode_mean(model, X, X_var, Y, Y_var, trial: int, n_observed: int | None = None) -> dict:
     """A mean rollout's layers X (A, T, Q_X), Y (A, T, D) and their isotropic variances
     (X_var broadcastable to (A, T), Y_var (A, T)) -> the rollout's fields: angles, positions
-    and their variances on the rig of training trial ``trial``; the first ``order`` frames
-    (observed) get no variance."""
+    and their variances on the rig of training trial ``trial``; the first ``n_observed``
+    frames (default: the dynamics order; observed) get no variance."""
     A = model.n_actors
     Y_var = np.array(Y_var, dtype=np.float64)
     ang, ang_var, pos, pos_var, sks = [], [], [], [], []
@@ -749,7 +785,7 @@ def decode_mean(model, X, X_var, Y, Y_var, trial: int) -> dict:
         p, pv = _positions_with_var(rig_skeleton, rig_values, rig_var)
         ang.append(v), ang_var.append(var), pos.append(p), pos_var.append(pv), sks.append(sk)
     # the first o frames are observed: no predictive variance there
-    o = model.spec.order
+    o = model.spec.order if n_observed is None else n_observed
     Xv = np.broadcast_to(np.asarray(X_var), (A, X.shape[1])).copy()
     for arr in (Xv, Y_var):
         arr[:, :o] = 0.0

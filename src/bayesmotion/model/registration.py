@@ -24,8 +24,11 @@ MAX_SLOPE = 2
 """A warp advances the other path by 1/2 to 2 frames per reference frame (steps (1, 1),
 (1, 2) and (2, 1) of the dynamic time warping)."""
 SMOOTH_SECONDS = 0.1
-"""Standard deviation (seconds) of the Gaussian that smooths a warp's integer steps, so the
-blended motion does not jerk where the warp steps by 0 or 2 frames."""
+"""Standard deviation (seconds, at least one frame) of the Gaussian that smooths a warp's
+integer steps, so the blended motion does not jerk where the warp steps by 0 or 2 frames."""
+TIE_BREAK = 1e-9
+"""Extra cost of a (1, 2) or (2, 1) step, relative to the first frame's mean cost: equal
+paths resolve to the diagonal."""
 
 
 def registration_features(path: np.ndarray) -> np.ndarray:
@@ -68,11 +71,14 @@ def time_warp(ref: np.ndarray, other: np.ndarray) -> np.ndarray:
 
     choice = np.zeros((La, Lb), np.int8)  # 1: (1, 1), 2: (1, 2), 3: (2, 1), 0: path start
     c_prev, D_prev = cost(0), cost(0)  # open begin: any frame of other can match ref[0]
+    # a slope change costs a negligible amount more than the diagonal, so that where poses
+    # repeat (a body at rest) equal costs resolve to the diagonal, not to slope 1/2
+    tie = TIE_BREAK * (1.0 + float(np.mean(c_prev)))
     D_prev2 = None
     for i in range(1, La):
         c = cost(i)
-        cand = np.stack([shift(D_prev, 1), shift(D_prev, 2),
-                         c_prev if D_prev2 is None else shift(D_prev2, 1) + c_prev])
+        cand = np.stack([shift(D_prev, 1), shift(D_prev, 2) + tie,
+                         (c_prev if D_prev2 is None else shift(D_prev2, 1) + c_prev) + tie])
         k = np.argmin(cand, axis=0)
         choice[i] = k + 1
         D_prev2, D_prev, c_prev = D_prev, c + cand[k, np.arange(Lb)], c
@@ -93,11 +99,17 @@ def time_warp(ref: np.ndarray, other: np.ndarray) -> np.ndarray:
 
 
 def smooth_warp(match: np.ndarray, fps: float, smooth_s: float = SMOOTH_SECONDS) -> np.ndarray:
-    """A warp's integer matches -> a smooth non-decreasing float warp (Gaussian of
-    ``smooth_s`` seconds; a convolution of a non-decreasing sequence with a positive kernel
-    stays non-decreasing)."""
+    """A warp's integer matches -> a smooth non-decreasing float warp with the same first
+    frame: its steps (0, 1 or 2 frames) smoothed by a Gaussian of ``smooth_s`` seconds (at
+    least one frame) and summed again. Smoothing the steps, not the positions, keeps a warp
+    of slope 1 the identity and its start where the warping put it; non-negative steps stay
+    non-negative."""
+    match = np.asarray(match, np.float64)
+    if len(match) < 2:
+        return match
     sigma = max(1.0, smooth_s * fps)
-    return gaussian_filter1d(np.asarray(match, np.float64), sigma, mode="nearest")
+    steps = gaussian_filter1d(np.diff(match), sigma, mode="nearest")
+    return match[0] + np.concatenate([[0.0], np.cumsum(steps)])
 
 
 def blend_timeline(warps: list[np.ndarray], weights: np.ndarray) -> np.ndarray:
@@ -140,10 +152,17 @@ def registration(paths: list[np.ndarray], weights: np.ndarray, ref: int, n_frame
     Returns:
         per level, (n_frames,) fractional frames of its path.
     """
+    if min(len(p) for p in paths) < 2:
+        raise BayesmotionError("registration needs paths of at least 2 frames")
     feats = [registration_features(p) for p in paths]
-    scale = np.std(np.concatenate(feats), axis=0) + 1e-9  # every feature on one scale
+    pooled = np.concatenate(feats)
+    # every feature centred and on one scale; one that does not vary is left as it is
+    # (centred: 0), so no constant offset enters the distances' rounding
+    sd = np.std(pooled, axis=0)
+    scale = np.where(sd > 1e-12 * max(float(sd.max()), 1e-300), sd, 1.0)
+    feats = [(f - pooled.mean(0)) / scale for f in feats]
     warps = [np.arange(len(paths[ref]), dtype=np.float64) if k == ref else
-             smooth_warp(time_warp(feats[ref] / scale, f / scale), fps)
+             smooth_warp(time_warp(feats[ref], f), fps)
              for k, f in enumerate(feats)]
     u = blend_timeline(warps, weights)
     if u[-1] < n_frames - 1:
