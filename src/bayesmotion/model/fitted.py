@@ -221,7 +221,7 @@ class FittedHGPDM:
                 path. Constant coordinates along one factor; ``start`` a trial index of the
                 largest weight's level, or None. On the Bandai walks the cycle-averaged
                 emotion strength of Ho et al. then follows the coordinate (Spearman 0.93,
-                calibration error 0.19; ``benchmarks/results/study_interpolation_shared_
+                calibration error 0.20; ``benchmarks/results/study_interpolation_shared_
                 latents_synthesis_setup_registered_dynamics.json``).
             **styles: values for any other style factor of the model.
         Returns:
